@@ -29,7 +29,7 @@ from condor import __version__
 FORMAT = "condor-dataset"
 FORMAT_VERSION = 1
 CHANNELS = ("mould", "tether")
-FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
+from condor.fields import FIELD_NAMES  # noqa: E402  (one definition of the channel order)
 SPLITS = ("train", "val", "test")
 
 # Per-sample metadata: name -> (dtype, fill value). Strings are fixed-width (numpy "<U"),
