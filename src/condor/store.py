@@ -25,11 +25,11 @@ import numpy as np
 import zarr
 
 from condor import __version__
+from condor.fields import FIELD_NAMES
 
 FORMAT = "condor-dataset"
 FORMAT_VERSION = 1
 CHANNELS = ("mould", "tether")
-from condor.fields import FIELD_NAMES  # noqa: E402  (one definition of the channel order)
 SPLITS = ("train", "val", "test")
 
 # Per-sample metadata: name -> (dtype, fill value). Strings are fixed-width (numpy "<U"),
