@@ -1,0 +1,23 @@
+"""The surrogate: pix2pix (the paper's) and right-sized U-Nets from mould inputs to the 8
+fields, with training, evaluation, prediction and baselines. See docs/surrogate.md."""
+
+from .baselines import MaskedMeanBaseline, MouldBlurBaseline
+from .checkpoint import (CheckpointError, CheckpointMismatchError, CheckpointNotFoundError,
+                         load_checkpoint)
+from .data import FieldScaling, compute_scaling, resample_fields, resample_masks, usable_samples
+from .evaluate import evaluate, evaluate_predictions, pearson_r
+from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator,
+                     count_parameters_like_paper, paper_discriminator, paper_generator,
+                     set_prediction_mode)
+from .predict import Prediction, Predictor, plot_prediction, predict
+from .train import MODEL_KINDS, TrainConfig, train
+
+__all__ = [
+    "MaskedMeanBaseline", "MouldBlurBaseline", "CheckpointError", "CheckpointMismatchError",
+    "CheckpointNotFoundError", "load_checkpoint", "FieldScaling", "compute_scaling",
+    "resample_fields", "resample_masks", "usable_samples", "evaluate", "evaluate_predictions",
+    "pearson_r", "PREDICTION_MODES", "PatchConfig", "PatchDiscriminator", "UNetConfig",
+    "UNetGenerator", "count_parameters_like_paper", "paper_discriminator", "paper_generator",
+    "set_prediction_mode", "Prediction", "Predictor", "plot_prediction", "predict",
+    "MODEL_KINDS", "TrainConfig", "train",
+]

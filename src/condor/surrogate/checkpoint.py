@@ -1,0 +1,86 @@
+"""The training checkpoint: one dict (networks, optimisers, epoch, config, scaling, history),
+written atomically, and the errors that name a missing or mismatched file."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import torch
+
+from .data import FieldScaling
+from .models import PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator
+
+FORMAT = "condor-surrogate/1"
+
+
+class CheckpointError(ValueError):
+    """A checkpoint that cannot be used; the message names the file and the problem."""
+
+
+class CheckpointNotFoundError(CheckpointError, FileNotFoundError):
+    pass
+
+
+class CheckpointMismatchError(CheckpointError):
+    pass
+
+
+def save_checkpoint(state: dict, path) -> None:
+    """Write `state` to `path` via a temporary file and os.replace, so a reader (or a run
+    killed mid-write) sees either the previous checkpoint or the new one."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
+    torch.save({"format": FORMAT, **state}, tmp)
+    os.replace(tmp, path)
+
+
+def load_checkpoint(path, map_location="cpu") -> dict:
+    """Read a checkpoint; CheckpointNotFoundError when absent, CheckpointError when it is not
+    a condor surrogate checkpoint."""
+    path = Path(path)
+    if not path.is_file():
+        raise CheckpointNotFoundError(f"surrogate checkpoint {str(path)!r} does not exist "
+                                      "(train a model first)")
+    try:
+        state = torch.load(path, map_location=map_location, weights_only=True)
+    except Exception as err:  # torch raises several types for a corrupt file
+        raise CheckpointError(f"cannot read surrogate checkpoint {str(path)!r}: {err}") from err
+    if not isinstance(state, dict) or state.get("format") != FORMAT:
+        raise CheckpointError(f"{str(path)!r} is not a {FORMAT} checkpoint")
+    missing = {"generator", "generator_config", "scaling", "data", "config"} - set(state)
+    if missing:
+        raise CheckpointError(f"checkpoint {str(path)!r} lacks {sorted(missing)}")
+    return state
+
+
+def _load_state(model: torch.nn.Module, state: dict, what: str, path) -> None:
+    try:
+        model.load_state_dict(state)
+    except RuntimeError as err:
+        raise CheckpointMismatchError(
+            f"checkpoint {str(path)!r}: {what} weights do not match its config: {err}") from err
+
+
+def generator_from_checkpoint(state: dict, path="<checkpoint>") -> UNetGenerator:
+    """The generator described by a checkpoint's config, with its weights loaded."""
+    try:
+        cfg = UNetConfig(**state["generator_config"])
+    except (TypeError, ValueError) as err:
+        raise CheckpointMismatchError(f"checkpoint {str(path)!r}: bad generator config: {err}") from err
+    model = UNetGenerator(cfg)
+    _load_state(model, state["generator"], "generator", path)
+    return model
+
+
+def discriminator_from_checkpoint(state: dict, path="<checkpoint>") -> PatchDiscriminator | None:
+    if state.get("discriminator") is None:
+        return None
+    model = PatchDiscriminator(PatchConfig(**state["patch_config"]))
+    _load_state(model, state["discriminator"], "discriminator", path)
+    return model
+
+
+def scaling_from_checkpoint(state: dict) -> FieldScaling:
+    return FieldScaling.from_dict(state["scaling"])

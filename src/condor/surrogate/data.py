@@ -1,0 +1,191 @@
+"""Dataset access for the surrogate: usable samples, [-1, 1] scaling, resampling.
+
+The dataset is an xarray.Dataset with `inputs` (sample, channel, y, x) 0/1, `fields`
+(sample, field, y, x) float32, `split` and `status` per sample (see docs/surrogate.md).
+Samples are read one at a time (one zarr chunk per sample) unless the selection is small
+enough to hold in memory.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
+CHANNEL_NAMES = ("mould", "tether")
+SPLITS = ("train", "val", "test")
+PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
+
+
+def usable_samples(ds, split: str | None = None) -> np.ndarray:
+    """Positions (along `sample`) of samples with status "ok", optionally in one split."""
+    if split is not None and split not in SPLITS:
+        raise ValueError(f"split {split!r} is not one of {SPLITS}")
+    status = np.asarray(ds["status"].values).astype(str)
+    keep = status == "ok"
+    if split is not None:
+        keep &= np.asarray(ds["split"].values).astype(str) == split
+    return np.flatnonzero(keep)
+
+
+def check_dataset(ds) -> None:
+    """Raise ValueError when `ds` lacks a variable or the channel/field names differ."""
+    for name in ("inputs", "fields", "split", "status"):
+        if name not in ds:
+            raise ValueError(f"dataset has no variable {name!r}")
+    if "field" in ds.coords and tuple(map(str, ds["field"].values)) != FIELD_NAMES:
+        raise ValueError(f"dataset fields {list(map(str, ds['field'].values))} != {FIELD_NAMES}")
+    if "channel" in ds.coords and tuple(map(str, ds["channel"].values)) != CHANNEL_NAMES:
+        raise ValueError(f"dataset channels {list(map(str, ds['channel'].values))} != "
+                         f"{CHANNEL_NAMES}")
+
+
+# --- resampling ----------------------------------------------------------------------------
+
+def _factor(size_from: int, size_to: int) -> tuple[int, bool]:
+    """Integer ratio between two grid sides and whether it is an upsampling."""
+    big, small = max(size_from, size_to), min(size_from, size_to)
+    if small < 1 or big % small:
+        raise ValueError(f"cannot resample {size_from} px to {size_to} px: not an integer ratio")
+    return big // small, size_to > size_from
+
+
+def _block(a: np.ndarray, f: int) -> np.ndarray:
+    h, w = a.shape[-2:]
+    return a.reshape(*a.shape[:-2], h // f, f, w // f, f)
+
+
+def resample_masks(masks: np.ndarray, size: int) -> np.ndarray:
+    """Masks (..., H, W) 0/1 -> (..., size, size): nearest (pixel replication) when
+    upsampling, majority of each block (area >= 1/2) when downsampling."""
+    f, up = _factor(masks.shape[-1], size)
+    if f == 1:
+        return masks
+    if up:
+        return masks.repeat(f, axis=-2).repeat(f, axis=-1)
+    return (_block(masks, f).mean(axis=(-3, -1)) >= 0.5).astype(masks.dtype)
+
+
+def resample_fields(fields: np.ndarray, size: int) -> np.ndarray:
+    """Fields (..., H, W) -> (..., size, size), conserving each field's sum over any block
+    (the fields are pixel integrals): block sums when downsampling, replication divided by the
+    pixel-area ratio when upsampling. Down(up(f)) == f exactly."""
+    f, up = _factor(fields.shape[-1], size)
+    if f == 1:
+        return fields
+    if up:
+        return fields.repeat(f, axis=-2).repeat(f, axis=-1) / fields.dtype.type(f * f)
+    return _block(fields, f).sum(axis=(-3, -1))
+
+
+# --- scaling -------------------------------------------------------------------------------
+
+@dataclass
+class FieldScaling:
+    """Per-field affine map of [lo, hi] (training-split min/max, at the model resolution) to
+    [-1, 1]. A constant field (hi == lo) maps to -1 and back to lo."""
+
+    lo: np.ndarray  # (n_fields,)
+    hi: np.ndarray
+    field_names: tuple = FIELD_NAMES
+
+    def __post_init__(self):
+        self.lo = np.asarray(self.lo, dtype=np.float64)
+        self.hi = np.asarray(self.hi, dtype=np.float64)
+        if self.lo.shape != self.hi.shape or self.lo.shape != (len(self.field_names),):
+            raise ValueError(f"scaling lo {self.lo.shape} / hi {self.hi.shape} do not match "
+                             f"{len(self.field_names)} fields")
+        if np.any(self.hi < self.lo):
+            raise ValueError(f"scaling hi {self.hi} below lo {self.lo}")
+
+    def _span(self) -> np.ndarray:
+        return np.where(self.hi > self.lo, self.hi - self.lo, 1.0)
+
+    def _shape(self, a, values):
+        # Broadcast per-field values over (..., field, y, x).
+        v = values.reshape(-1, 1, 1)
+        return torch.as_tensor(v, dtype=a.dtype, device=a.device) if torch.is_tensor(a) \
+            else v.astype(a.dtype)
+
+    def scale(self, fields):
+        """(..., n_fields, H, W) physical values -> [-1, 1] (numpy or torch)."""
+        return (fields - self._shape(fields, self.lo)) * self._shape(fields, 2.0 / self._span()) - 1
+
+    def unscale(self, scaled):
+        return (scaled + 1) * self._shape(scaled, self._span() / 2.0) + self._shape(scaled, self.lo)
+
+    def to_dict(self) -> dict:
+        return {"lo": self.lo.tolist(), "hi": self.hi.tolist(), "field_names": list(self.field_names)}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "FieldScaling":
+        return cls(np.array(d["lo"]), np.array(d["hi"]), tuple(d["field_names"]))
+
+
+def _chunks(indices: np.ndarray, n: int):
+    for start in range(0, len(indices), n):
+        yield indices[start:start + n]
+
+
+def compute_scaling(ds, indices: np.ndarray, size: int | None = None, chunk: int = 16) -> FieldScaling:
+    """Min/max per field over the samples `indices` (the training split), after resampling to
+    `size` (the model's resolution) when given. Reads `chunk` samples at a time."""
+    if len(indices) == 0:
+        raise ValueError("cannot compute a field scaling from zero samples")
+    lo = np.full(len(FIELD_NAMES), np.inf)
+    hi = np.full(len(FIELD_NAMES), -np.inf)
+    for part in _chunks(np.asarray(indices), chunk):
+        f = np.asarray(ds["fields"].isel(sample=part).values, dtype=np.float32)
+        if size is not None:
+            f = resample_fields(f, size)
+        lo = np.minimum(lo, f.min(axis=(0, 2, 3)))
+        hi = np.maximum(hi, f.max(axis=(0, 2, 3)))
+    return FieldScaling(lo, hi)
+
+
+# --- samples -------------------------------------------------------------------------------
+
+class SampleSource:
+    """Model-ready samples: inputs (2, S, S) float32 0/1 and scaled fields (8, S, S) float32 at
+    the model resolution S. Holds them in memory when they fit in PRELOAD_BYTES, else reads
+    one sample per access."""
+
+    def __init__(self, ds, indices, scaling: FieldScaling | None, size: int | None = None,
+                 preload: bool | None = None):
+        self.ds = ds
+        self.indices = np.asarray(indices, dtype=np.int64)
+        self.scaling = scaling
+        self.native = int(ds.sizes["x"])
+        self.size = self.native if size is None else int(size)
+        _factor(self.native, self.size)  # validate the ratio early
+        n_bytes = len(self.indices) * 10 * self.size ** 2 * 4
+        self.preload = n_bytes <= PRELOAD_BYTES if preload is None else preload
+        self._cache = None
+        if self.preload and len(self.indices):
+            self._cache = self._read(self.indices)
+
+    def __len__(self) -> int:
+        return len(self.indices)
+
+    def _read(self, positions: np.ndarray):
+        sel = self.ds.isel(sample=positions)
+        inputs = resample_masks(np.asarray(sel["inputs"].values, dtype=np.float32), self.size)
+        fields = np.asarray(sel["fields"].values, dtype=np.float32)
+        if self.scaling is not None:
+            fields = self.scaling.scale(resample_fields(fields, self.size)).astype(np.float32)
+        return torch.from_numpy(np.ascontiguousarray(inputs)), torch.from_numpy(np.ascontiguousarray(fields))
+
+    def batch(self, items) -> tuple[torch.Tensor, torch.Tensor]:
+        """Items (positions into this source) -> (inputs (B,2,S,S), scaled fields (B,8,S,S))."""
+        items = np.asarray(items, dtype=np.int64)
+        if self._cache is not None:
+            return self._cache[0][items], self._cache[1][items]
+        parts = [self._read(self.indices[[i]]) for i in items]
+        return torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
+
+    def native_fields(self, items) -> np.ndarray:
+        """Unscaled fields at the native resolution, (B, 8, H, W) float32."""
+        return np.asarray(self.ds["fields"].isel(sample=self.indices[np.asarray(items)]).values,
+                          dtype=np.float32)

@@ -1,0 +1,291 @@
+"""Image-to-image networks: the paper's pix2pix (U-Net generator + 70x70 PatchGAN) and a
+configurable U-Net family for smaller scenes.
+
+The paper's tables are TensorFlow's pix2pix tutorial model, layer for layer, so this module
+follows TensorFlow where PyTorch defaults differ:
+- convolutions: kernel 4, stride 2, 'same' padding, no bias except the last layer of each
+  network; weights ~ N(0, 0.02);
+- BatchNorm: eps 1e-3, running averages with decay 0.99, biased batch variance, and it accepts
+  a single value per channel (the generator's 1x1 bottleneck at batch size 1, where PyTorch's
+  own BatchNorm2d refuses to train);
+- LeakyReLU slope 0.3 (Keras' default, which the tutorial uses; the pix2pix paper uses 0.2);
+- three dropout layers (rate 0.5) in the decoder, after BatchNorm, before ReLU.
+
+Prediction mode (BatchNorm and dropout at inference): reference pix2pix implementations call
+the generator in training mode at test time (batch statistics, dropout on). Here it is a
+parameter, `set_prediction_mode(model, mode)`, with three modes:
+- "eval" (our default): running statistics, no dropout; deterministic, independent of batch;
+- "batch_stats": BatchNorm uses the statistics of the batch, no dropout;
+- "train": batch statistics and dropout, as the reference implementations predict.
+"""
+
+from __future__ import annotations
+
+import math
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+PREDICTION_MODES = ("eval", "batch_stats", "train")
+PAPER_SIZE = 256
+PAPER_GENERATOR_PARAMETERS = 54_435_080  # Appendix table, BN running statistics included
+PAPER_DISCRIMINATOR_PARAMETERS = 2_774_529
+INIT_STD = 0.02
+
+
+class TFBatchNorm2d(nn.BatchNorm2d):
+    """BatchNorm as TensorFlow computes it: biased variance for the running estimate, and a
+    batch of one value per channel normalises to beta instead of raising."""
+
+    def __init__(self, channels: int, eps: float = 1e-3, decay: float = 0.99):
+        super().__init__(channels, eps=eps, momentum=1.0 - decay)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training:
+            return F.batch_norm(x, self.running_mean, self.running_var, self.weight, self.bias,
+                                False, 0.0, self.eps)
+        mean = x.mean(dim=(0, 2, 3))
+        var = x.var(dim=(0, 2, 3), unbiased=False)
+        with torch.no_grad():
+            self.running_mean.lerp_(mean.detach(), self.momentum)
+            self.running_var.lerp_(var.detach(), self.momentum)
+            self.num_batches_tracked += 1
+        scale = self.weight * torch.rsqrt(var + self.eps)
+        shift = self.bias - mean * scale
+        return x * scale[None, :, None, None] + shift[None, :, None, None]
+
+
+@dataclass(frozen=True)
+class UNetConfig:
+    """A pix2pix-style U-Net generator.
+
+    size: input side in pixels (must be divisible by 2**depth); base: channels of the first
+    level; depth: number of stride-2 levels (log2(size) reaches a 1x1 bottleneck, as the
+    paper); max_width: channel cap; n_dropout: decoder blocks (from the bottleneck) with dropout.
+    """
+
+    in_channels: int = 2
+    out_channels: int = 8
+    size: int = PAPER_SIZE
+    base: int = 64
+    depth: int = 8
+    max_width: int = 512
+    n_dropout: int = 3
+    dropout: float = 0.5
+    leaky_slope: float = 0.3
+
+    def __post_init__(self):
+        for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.size % (2 ** self.depth):
+            raise ValueError(f"UNetConfig.size={self.size} is not divisible by "
+                             f"2**depth={2 ** self.depth}")
+        if not 0.0 <= self.dropout < 1.0:
+            raise ValueError(f"UNetConfig.dropout must be in [0, 1), got {self.dropout}")
+
+    @classmethod
+    def paper(cls) -> "UNetConfig":
+        """The Appendix generator: 2 -> 8 channels at 256 px, 8 levels, widths 64..512."""
+        return cls()
+
+    @classmethod
+    def for_size(cls, size: int, base: int = 32, depth: int | None = None,
+                 max_width: int = 256, **kw) -> "UNetConfig":
+        """A right-sized U-Net: `depth` defaults to reaching a 4x4 bottleneck."""
+        if depth is None:
+            depth = max(1, int(math.log2(size)) - 2)
+        return cls(size=size, base=base, depth=depth, max_width=max_width, **kw)
+
+    def widths(self) -> list[int]:
+        return [min(self.base * 2 ** i, self.max_width) for i in range(self.depth)]
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class PatchConfig:
+    """A PatchGAN discriminator: `n_down` stride-2 convolutions, then two stride-1
+    convolutions behind zero padding. n_down=3 at 256 px is the paper's 70x70, 30x30 output."""
+
+    in_channels: int = 10
+    base: int = 64
+    n_down: int = 3
+    max_width: int = 512
+    leaky_slope: float = 0.3
+
+    def __post_init__(self):
+        if self.n_down < 1 or self.base < 1 or self.in_channels < 1:
+            raise ValueError(f"invalid PatchConfig {self}")
+
+    def output_side(self, size: int) -> int:
+        return size // 2 ** self.n_down - 2
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:
+    layers = [nn.Conv2d(c_in, c_out, 4, stride=2, padding=1, bias=False)]
+    if norm:
+        layers.append(TFBatchNorm2d(c_out))
+    layers.append(nn.LeakyReLU(slope))
+    return nn.Sequential(*layers)
+
+
+def _up(c_in: int, c_out: int, dropout: float) -> nn.Sequential:
+    layers = [nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=False),
+              TFBatchNorm2d(c_out)]
+    if dropout > 0:
+        layers.append(nn.Dropout(dropout))
+    layers.append(nn.ReLU())
+    return nn.Sequential(*layers)
+
+
+def _init_weights(model: nn.Module, generator: torch.Generator | None) -> None:
+    """TensorFlow tutorial initialisation: kernels ~ N(0, 0.02), biases 0, BN gamma 1."""
+    for m in model.modules():
+        if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d)):
+            with torch.no_grad():
+                m.weight.normal_(0.0, INIT_STD, generator=generator)
+                if m.bias is not None:
+                    m.bias.zero_()
+
+
+class UNetGenerator(nn.Module):
+    """U-Net generator: (B, in_channels, size, size) in [-1, 1] -> (B, out_channels, size,
+    size) in (-1, 1) (tanh)."""
+
+    def __init__(self, cfg: UNetConfig = UNetConfig(), generator: torch.Generator | None = None):
+        super().__init__()
+        self.cfg = cfg
+        widths = cfg.widths()
+        self.down = nn.ModuleList(
+            _down(c_in, c_out, norm=i > 0, slope=cfg.leaky_slope)
+            for i, (c_in, c_out) in enumerate(zip([cfg.in_channels] + widths[:-1], widths)))
+        # Decoder: from the bottleneck up to level 0; after the first block the input is the
+        # previous output concatenated with the encoder skip of the same resolution.
+        ups = []
+        for k, level in enumerate(range(cfg.depth - 2, -1, -1)):
+            c_in = widths[level + 1] * (1 if k == 0 else 2)
+            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0))
+        self.up = nn.ModuleList(ups)
+        last_in = widths[0] * (2 if cfg.depth > 1 else 1)
+        self.last = nn.ConvTranspose2d(last_in, cfg.out_channels, 4, stride=2, padding=1)
+        _init_weights(self, generator)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        skips = []
+        for block in self.down:
+            x = block(x)
+            skips.append(x)
+        skips = skips[-2::-1]  # encoder outputs below the bottleneck, deepest first
+        for block, skip in zip(self.up, skips):
+            x = torch.cat([block(x), skip], dim=1)
+        return torch.tanh(self.last(x))
+
+
+class PatchDiscriminator(nn.Module):
+    """PatchGAN: (inputs (B, c_in, S, S), image (B, c_img, S, S)) -> logits (B, 1, S', S')."""
+
+    def __init__(self, cfg: PatchConfig = PatchConfig(), generator: torch.Generator | None = None):
+        super().__init__()
+        self.cfg = cfg
+        widths = [min(cfg.base * 2 ** i, cfg.max_width) for i in range(cfg.n_down + 1)]
+        self.down = nn.Sequential(*(
+            _down(c_in, c_out, norm=i > 0, slope=cfg.leaky_slope)
+            for i, (c_in, c_out) in enumerate(zip([cfg.in_channels] + widths[:-2], widths[:-1]))))
+        self.head = nn.Sequential(
+            nn.ZeroPad2d(1), nn.Conv2d(widths[-2], widths[-1], 4, stride=1, bias=False),
+            TFBatchNorm2d(widths[-1]), nn.LeakyReLU(cfg.leaky_slope),
+            nn.ZeroPad2d(1), nn.Conv2d(widths[-1], 1, 4, stride=1))
+        _init_weights(self, generator)
+
+    def forward(self, inputs: torch.Tensor, image: torch.Tensor) -> torch.Tensor:
+        return self.head(self.down(torch.cat([inputs, image], dim=1)))
+
+
+def paper_generator(generator: torch.Generator | None = None) -> UNetGenerator:
+    return UNetGenerator(UNetConfig.paper(), generator)
+
+
+def paper_discriminator(generator: torch.Generator | None = None) -> PatchDiscriminator:
+    return PatchDiscriminator(PatchConfig(), generator)
+
+
+def count_parameters_like_paper(model: nn.Module) -> int:
+    """Trainable parameters plus BatchNorm running mean and variance, as the paper's tables
+    (Keras' summary) count them; the batch counter is not counted."""
+    n = sum(p.numel() for p in model.parameters() if p.requires_grad)
+    for m in model.modules():
+        if isinstance(m, nn.modules.batchnorm._BatchNorm) and m.track_running_stats:
+            n += m.running_mean.numel() + m.running_var.numel()
+    return n
+
+
+def set_prediction_mode(model: nn.Module, mode: str) -> nn.Module:
+    """Put `model` in one of PREDICTION_MODES (see the module docstring); returns it."""
+    if mode not in PREDICTION_MODES:
+        raise ValueError(f"prediction mode {mode!r} is not one of {PREDICTION_MODES}")
+    model.eval()
+    if mode in ("batch_stats", "train"):
+        for m in model.modules():
+            if isinstance(m, nn.modules.batchnorm._BatchNorm):
+                m.train()
+    if mode == "train":
+        for m in model.modules():
+            if isinstance(m, nn.Dropout):
+                m.train()
+    return model
+
+
+@contextmanager
+def prediction_mode(model: nn.Module, mode: str):
+    """Run `model` in `mode` for the block, then restore its training flags and its BatchNorm
+    running statistics (which "batch_stats" and "train" would otherwise update)."""
+    flags = {m: m.training for m in model.modules()}
+    buffers = {k: v.clone() for k, v in model.named_buffers()}
+    try:
+        yield set_prediction_mode(model, mode)
+    finally:
+        for m, flag in flags.items():
+            m.training = flag
+        with torch.no_grad():
+            for k, v in model.named_buffers():
+                v.copy_(buffers[k])
+
+
+# --- losses, as the paper's Appendix writes them -------------------------------------------
+
+def l1_loss(generated: torch.Tensor, label: torch.Tensor) -> torch.Tensor:
+    """Mean absolute difference over pixels and channels (the paper's L_L1)."""
+    return (generated - label).abs().mean()
+
+
+def sigmoid_cross_entropy(logits: torch.Tensor, target: float) -> torch.Tensor:
+    """Per-pixel L_LSXE(X, Y) = (Y-1) log(1-sigmoid X) - Y log(sigmoid X), unreduced."""
+    return F.binary_cross_entropy_with_logits(logits, torch.full_like(logits, target),
+                                              reduction="none")
+
+
+def discriminator_loss(real_logits: torch.Tensor, generated_logits: torch.Tensor) -> torch.Tensor:
+    """L_disc = sum over patch pixels of LSXE(D^L, 1) + LSXE(D^G, 0), averaged over the batch
+    (the paper's sum; with Adam its scale does not change the updates)."""
+    per_pixel = sigmoid_cross_entropy(real_logits, 1.0) + sigmoid_cross_entropy(generated_logits, 0.0)
+    return per_pixel.flatten(1).sum(1).mean()
+
+
+def generator_loss(generated_logits: torch.Tensor, generated: torch.Tensor, label: torch.Tensor,
+                   lam: float = 1000.0, adversarial_target: float = 1.0):
+    """L_gen = lam * L_L1 + mean over patch pixels of LSXE(D^G, target).
+
+    The paper writes the target as 0, which would reward the generator for looking fake; the
+    TensorFlow pix2pix code the paper follows (and the pix2pix paper) uses 1, our default.
+    Returns (total, l1, adversarial)."""
+    l1 = l1_loss(generated, label)
+    adversarial = sigmoid_cross_entropy(generated_logits, adversarial_target).mean()
+    return lam * l1 + adversarial, l1, adversarial

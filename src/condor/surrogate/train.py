@@ -1,0 +1,258 @@
+"""Training loop for the surrogate: pix2pix (the paper), a right-sized U-Net with the same GAN
+objective, or a U-Net trained on L1 alone.
+
+Checkpoint = one dict written atomically at the end of every epoch; `train` resumes from it.
+On CPU with a fixed seed the run is deterministic, and 1 epoch + resume 1 epoch gives the same
+weights as 2 epochs: the data order and the torch RNG (dropout) are re-seeded from
+(seed, epoch) at the start of every epoch, so nothing but the checkpoint carries state.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from contextlib import contextmanager
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
+                         generator_from_checkpoint, load_checkpoint, save_checkpoint,
+                         scaling_from_checkpoint)
+from .data import (CHANNEL_NAMES, FIELD_NAMES, SampleSource, check_dataset, compute_scaling,
+                   usable_samples)
+from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
+                     UNetGenerator, discriminator_loss, generator_loss, l1_loss)
+from .predict import default_device, run_generator
+
+MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
+# Config keys that may change between a run and its resumption.
+RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode"}
+
+
+@dataclass
+class TrainConfig:
+    """Training settings; defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4, betas
+    0.5/0.999, batch 1, 10 epochs).
+
+    model: "pix2pix" (paper generator and discriminator at 256 px; data resampled to 256),
+    "unet_gan" (U-Net `unet` + PatchGAN `patch`, same losses) or "unet_l1" (U-Net, L1 only).
+    unet/patch: None picks UNetConfig.for_size(native size) / PatchConfig().
+    prediction_mode: BatchNorm/dropout mode for validation and default for prediction.
+    adversarial_target: the generator's adversarial target (1 standard; the paper writes 0).
+    num_threads: torch CPU threads during training (None leaves the current setting).
+    """
+
+    model: str = "pix2pix"
+    unet: UNetConfig | None = None
+    patch: PatchConfig | None = None
+    epochs: int = 10
+    batch_size: int = 1
+    lr: float = 2e-4
+    betas: tuple = (0.5, 0.999)
+    lam: float = 1000.0
+    adversarial_target: float = 1.0
+    seed: int = 0
+    val_every: int = 1
+    max_val_samples: int | None = None
+    prediction_mode: str = "eval"
+    num_threads: int | None = 1
+    deterministic: bool = True
+
+    def __post_init__(self):
+        if isinstance(self.unet, dict):
+            self.unet = UNetConfig(**self.unet)
+        if isinstance(self.patch, dict):
+            self.patch = PatchConfig(**self.patch)
+        self.betas = tuple(self.betas)
+        if self.model not in MODEL_KINDS:
+            raise ValueError(f"TrainConfig.model {self.model!r} is not one of {MODEL_KINDS}")
+        if self.prediction_mode not in PREDICTION_MODES:
+            raise ValueError(f"TrainConfig.prediction_mode {self.prediction_mode!r} is not one "
+                             f"of {PREDICTION_MODES}")
+        for name in ("epochs", "batch_size", "val_every"):
+            if getattr(self, name) < (0 if name == "epochs" else 1):
+                raise ValueError(f"TrainConfig.{name} = {getattr(self, name)} is out of range")
+
+    def networks(self, native_size: int) -> tuple[UNetConfig, PatchConfig | None]:
+        """Generator and discriminator configs for data of `native_size` px."""
+        if self.model == "pix2pix":
+            return UNetConfig.paper(), PatchConfig()
+        unet = self.unet or UNetConfig.for_size(native_size)
+        if self.model == "unet_l1":
+            return unet, None
+        patch = self.patch or PatchConfig(in_channels=unet.in_channels + unet.out_channels)
+        return unet, patch
+
+    def to_dict(self) -> dict:
+        d = asdict(self)
+        d["betas"] = list(self.betas)
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "TrainConfig":
+        return cls(**d)
+
+
+@contextmanager
+def _torch_settings(cfg: TrainConfig):
+    """Fix threads and deterministic algorithms for the run; restore them afterwards."""
+    threads = torch.get_num_threads()
+    deterministic = torch.are_deterministic_algorithms_enabled()
+    try:
+        if cfg.num_threads:
+            torch.set_num_threads(cfg.num_threads)
+        torch.use_deterministic_algorithms(cfg.deterministic, warn_only=True)
+        yield
+    finally:
+        torch.set_num_threads(threads)
+        torch.use_deterministic_algorithms(deterministic)
+
+
+def _epoch_seed(seed: int, epoch: int) -> int:
+    return int(np.random.default_rng([seed, epoch, 7]).integers(2 ** 62))
+
+
+def _data_signature(ds, train_idx: np.ndarray) -> dict:
+    ids = ds["sample"].values[train_idx] if "sample" in ds.coords else train_idx
+    digest = hashlib.sha1(np.asarray(ids).astype(str).tobytes()).hexdigest()[:16]
+    return {"native_size": int(ds.sizes["x"]), "field_names": list(FIELD_NAMES),
+            "channel_names": list(CHANNEL_NAMES), "n_train": int(len(train_idx)),
+            "train_ids_sha1": digest}
+
+
+def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
+    """Raise CheckpointMismatchError naming `path` and every differing setting."""
+    old = {k: v for k, v in state["config"].items() if k not in RESUMABLE_KEYS}
+    new = {k: v for k, v in cfg.to_dict().items() if k not in RESUMABLE_KEYS}
+    diffs = [f"{k}: checkpoint {old.get(k)!r} vs now {new.get(k)!r}"
+             for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
+    diffs += [f"data {k}: checkpoint {state['data'].get(k)!r} vs now {v!r}"
+              for k, v in data.items() if state["data"].get(k) != v]
+    if diffs:
+        raise CheckpointMismatchError(f"cannot resume from {str(path)!r}; it was written for a "
+                                      "different run: " + "; ".join(diffs))
+
+
+def _set_grads(params, grads) -> None:
+    for p, g in zip(params, grads):
+        p.grad = g
+
+
+def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig) -> dict:
+    """One update as TensorFlow's pix2pix does it: both losses from the same forward pass,
+    gradients for both networks, then both optimiser steps."""
+    fake = G(x)
+    if D is None:
+        loss = l1_loss(fake, y)
+        opt_g.zero_grad(set_to_none=True)
+        loss.backward()
+        opt_g.step()
+        return {"l1": loss.item(), "g_loss": loss.item()}
+    real_logits = D(x, y)
+    fake_logits = D(x, fake)
+    g_total, l1, adversarial = generator_loss(fake_logits, fake, y, cfg.lam, cfg.adversarial_target)
+    d_total = discriminator_loss(real_logits, fake_logits)
+    g_params, d_params = list(G.parameters()), list(D.parameters())
+    _set_grads(g_params, torch.autograd.grad(g_total, g_params, retain_graph=True))
+    _set_grads(d_params, torch.autograd.grad(d_total, d_params))
+    opt_g.step()
+    opt_d.step()
+    return {"l1": l1.item(), "g_loss": g_total.item(), "adversarial": adversarial.item(),
+            "d_loss": d_total.item()}
+
+
+def validation_mae(G, scaling, source: SampleSource, mode: str, device) -> float:
+    """Mean absolute error over pixels, fields and samples, physical units, native grid."""
+    if len(source) == 0:
+        return float("nan")
+    items = np.arange(len(source))
+    inputs = np.asarray(source.ds["inputs"].isel(sample=source.indices).values, dtype=np.float32)
+    pred = run_generator(G, scaling, inputs, mode, device=device)
+    return float(np.abs(pred - source.native_fields(items)).mean())
+
+
+def _build(cfg: TrainConfig, native: int, device):
+    gcfg, pcfg = cfg.networks(native)
+    init = torch.Generator().manual_seed(cfg.seed)
+    G = UNetGenerator(gcfg, init).to(device)
+    D = PatchDiscriminator(pcfg, init).to(device) if pcfg else None
+    opt_g = torch.optim.Adam(G.parameters(), lr=cfg.lr, betas=cfg.betas)
+    opt_d = torch.optim.Adam(D.parameters(), lr=cfg.lr, betas=cfg.betas) if D else None
+    return G, D, opt_g, opt_d
+
+
+def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
+          resume: bool = True) -> list[dict]:
+    """Train on the "train" split of `dataset` (an xarray.Dataset), validating on "val".
+
+    Writes `checkpoint_path` after every epoch; if it exists (and `resume`), continues from it
+    (CheckpointMismatchError if it belongs to a different config or training set). Calls
+    `log(str)` once per epoch. Returns the history: one dict per epoch with l1, g_loss,
+    d_loss (GAN kinds), val_mae (physical units; None when not validated) and seconds."""
+    check_dataset(dataset)
+    device = default_device(device)
+    native = int(dataset.sizes["x"])
+    train_idx = usable_samples(dataset, "train")
+    if len(train_idx) == 0:
+        raise ValueError("dataset has no usable ('ok') samples in the 'train' split")
+    val_idx = usable_samples(dataset, "val")[:cfg.max_val_samples]
+    data = _data_signature(dataset, train_idx)
+    path = Path(checkpoint_path)
+    with _torch_settings(cfg):
+        G, D, opt_g, opt_d = _build(cfg, native, device)
+        state = load_checkpoint(path, map_location=device) if resume and path.exists() else None
+        if state is not None:
+            _check_resumable(state, cfg, data, path)
+            G.load_state_dict(generator_from_checkpoint(state, path).state_dict())
+            opt_g.load_state_dict(state["opt_g"])
+            if D is not None:
+                D.load_state_dict(discriminator_from_checkpoint(state, path).state_dict())
+                opt_d.load_state_dict(state["opt_d"])
+            scaling, history, start = scaling_from_checkpoint(state), list(state["history"]), state["epoch"]
+        else:
+            scaling, history, start = compute_scaling(dataset, train_idx, G.cfg.size), [], 0
+        train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size)
+        val_src = SampleSource(dataset, val_idx, None, native, preload=False)
+        for epoch in range(start, cfg.epochs):
+            t0 = time.perf_counter()
+            torch.manual_seed(_epoch_seed(cfg.seed, epoch))
+            order = np.random.default_rng([cfg.seed, epoch]).permutation(len(train_src))
+            G.train()
+            if D is not None:
+                D.train()
+            sums: dict[str, float] = {}
+            n_batches = 0
+            for start_item in range(0, len(order), cfg.batch_size):
+                x, y = train_src.batch(order[start_item:start_item + cfg.batch_size])
+                for k, v in _train_step(G, D, opt_g, opt_d, x.to(device), y.to(device), cfg).items():
+                    sums[k] = sums.get(k, 0.0) + v
+                n_batches += 1
+            record = {"epoch": epoch + 1, **{k: v / n_batches for k, v in sums.items()}}
+            last = epoch + 1 == cfg.epochs
+            validate = len(val_src) > 0 and ((epoch + 1) % cfg.val_every == 0 or last)
+            record["val_mae"] = validation_mae(G, scaling, val_src, cfg.prediction_mode, device) \
+                if validate else None
+            record["seconds"] = time.perf_counter() - t0
+            history.append(record)
+            save_checkpoint({
+                "config": cfg.to_dict(), "generator_config": G.cfg.to_dict(),
+                "patch_config": D.cfg.to_dict() if D is not None else None,
+                "generator": G.state_dict(), "discriminator": D.state_dict() if D else None,
+                "opt_g": opt_g.state_dict(), "opt_d": opt_d.state_dict() if D else None,
+                "epoch": epoch + 1, "scaling": scaling.to_dict(), "history": history,
+                "data": data}, path)
+            log(_format_record(record, cfg.epochs))
+    return history
+
+
+def _format_record(r: dict, epochs: int) -> str:
+    parts = [f"epoch {r['epoch']}/{epochs}", f"l1 {r['l1']:.4f}", f"g_loss {r['g_loss']:.4f}"]
+    if "d_loss" in r:
+        parts.append(f"d_loss {r['d_loss']:.4f}")
+    if r.get("val_mae") is not None:
+        parts.append(f"val_mae {r['val_mae']:.5f}")
+    parts.append(f"{r['seconds']:.1f} s")
+    return "  ".join(parts)
