@@ -110,6 +110,8 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
     touched: StoreError names the difference."""
     spec.check()
     path = Path(path)
+    if path.is_dir() and not any(path.iterdir()):
+        path.rmdir()  # an empty folder (Snakemake makes output folders before the job) holds nothing
     if path.exists():
         _check_compatible(path, spec)
         return False

@@ -1,0 +1,159 @@
+"""The workflow end to end on the tiny scene, through the `snakemake` command line.
+
+Each test runs in its own temporary directory (`--directory`), with the repository's
+Snakefile, profile and configs.
+"""
+
+import base64
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+import yaml
+
+REPO = Path(__file__).resolve().parents[1]
+SNAKEMAKE = [sys.executable, "-m", "snakemake"]
+
+pytestmark = pytest.mark.slow
+
+
+def snakemake_args(workdir, *extra, cores=2):
+    return [
+        *SNAKEMAKE, "--cores", str(cores), "--snakefile", str(REPO / "Snakefile"),
+        "--workflow-profile", str(REPO / "profiles" / "default"),
+        "--directory", str(workdir), *extra,
+    ]
+
+
+def overlay(workdir, **config):
+    """A config file layered over tiny.yaml (nested values survive, unlike --config)."""
+    workdir.mkdir(parents=True, exist_ok=True)
+    path = workdir / "overlay.yaml"
+    path.write_text(yaml.safe_dump(config))
+    return ("--configfile", str(REPO / "config" / "tiny.yaml"), str(path))
+
+
+def run(workdir, *extra, cores=2, check=True):
+    proc = subprocess.run(snakemake_args(workdir, *extra, cores=cores), capture_output=True, text=True)
+    if check and proc.returncode != 0:
+        raise AssertionError(f"snakemake failed ({proc.returncode}):\n{proc.stderr[-4000:]}")
+    return proc
+
+
+def store_of(workdir):
+    return workdir / "results" / "dataset.zarr"
+
+
+def assert_store_complete(store, n):
+    ds = xr.open_zarr(store)
+    assert ds.sizes["sample"] == n
+    status = ds["status"].values.astype(str)
+    assert (status != "").all(), f"unfinished samples: {np.flatnonzero(status == '')}"
+    ok = status == "ok"
+    assert ok.sum() >= n - 1, f"too many failures: {dict(zip(*np.unique(status, return_counts=True)))}"
+    fields = ds["fields"].values
+    assert np.isfinite(fields[ok]).all()
+    assert np.isnan(fields[~ok]).all()  # a failed simulation never becomes a sample
+    assert (ds["inputs_ready"].values == 1).all()
+    assert (ds["n_cells"].values[ok] > 0).all()
+    return ds
+
+
+TINY = ("--configfile", str(REPO / "config" / "tiny.yaml"))
+
+
+def test_end_to_end_tiny(tmp_path):
+    run(tmp_path, *TINY)
+    ds = assert_store_complete(store_of(tmp_path), 12)
+    inputs = ds["inputs"].values
+    assert inputs.shape == (12, 2, 32, 32)
+    assert not (inputs[:, 0] & inputs[:, 1]).any()  # tether pixels are never mould pixels
+    assert ds.attrs["scene"]["name"] == "tiny"
+    assert set(ds["split"].values.astype(str)) <= {"train", "val", "test"}
+    for figure in ("mould_gallery.png", "samples.png"):
+        assert (tmp_path / "results" / "figures" / figure).stat().st_size > 5000
+    # Nothing left to do: a second run schedules no job.
+    assert "Nothing to be done" in run(tmp_path, *TINY).stderr
+
+
+def test_same_config_gives_identical_fields(tmp_path):
+    first, second = tmp_path / "a", tmp_path / "b"
+    for workdir in (first, second):
+        run(workdir, *overlay(workdir, n_moulds=4, batch_size=2, split={"test": 1}), "--until", "dataset")
+    a, b = (xr.open_zarr(store_of(w)) for w in (first, second))
+    assert np.array_equal(a["fields"].values, b["fields"].values, equal_nan=True)
+    assert np.array_equal(a["inputs"].values, b["inputs"].values)
+    # byte-identical chunks, not just equal values
+    for chunk in sorted((store_of(first) / "fields").rglob("c/*/*/*/*")):
+        twin = store_of(second) / chunk.relative_to(store_of(first))
+        assert chunk.read_bytes() == twin.read_bytes()
+
+
+def incomplete_outputs(workdir):
+    """Names of outputs Snakemake still marks incomplete (.snakemake/incomplete/<b64 path>)."""
+    folder = workdir / ".snakemake" / "incomplete"
+    names = set()
+    for marker in folder.rglob("*") if folder.exists() else ():
+        try:
+            names.add(Path(base64.urlsafe_b64decode(marker.name).decode()).name)
+        except (ValueError, UnicodeDecodeError):
+            continue
+    return names
+
+
+def test_kill_and_resume(tmp_path):
+    """SIGKILL the workflow part-way several times; the rerun completes every sample and
+    leaves batches that had finished before the kills untouched."""
+    extra = (*overlay(tmp_path, n_moulds=16, batch_size=2, split={"test": 2}), "--until", "dataset")
+    done_dir = tmp_path / "results" / "fields"
+    finished_before: dict[str, float] = {}
+    for kill in range(3):
+        proc = subprocess.Popen(snakemake_args(tmp_path, *extra, cores=1), stdout=subprocess.DEVNULL,
+                                stderr=subprocess.DEVNULL, start_new_session=True)
+        deadline = time.time() + 240
+        target = len(finished_before) + 1
+        while time.time() < deadline and proc.poll() is None:
+            finished = {m.name for m in done_dir.glob("*.json")} - incomplete_outputs(tmp_path)
+            if len(finished) >= target:
+                break
+            time.sleep(0.2)
+        time.sleep(0.3 * kill)  # land the kill at different points of a job
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.wait()
+        in_flight = incomplete_outputs(tmp_path)
+        for marker in done_dir.glob("*.json"):
+            # A job killed after writing its output but before Snakemake recorded it as
+            # complete is legitimately redone; every other finished batch must be kept.
+            if marker.name not in in_flight:
+                finished_before.setdefault(marker.name, marker.stat().st_mtime_ns)
+    assert finished_before, "the workflow finished no batch before being killed"
+    assert len(finished_before) < 8, "the kills came too late to interrupt anything"
+    proc = run(tmp_path, *extra)
+    assert_store_complete(store_of(tmp_path), 16)
+    for name, mtime in finished_before.items():
+        assert (done_dir / name).stat().st_mtime_ns == mtime, f"{name} was recomputed"
+    # the rerun only ran the missing batches
+    rerun_jobs = len(re.findall(r"^(?:local)?rule fields:", proc.stderr, re.M))
+    assert rerun_jobs == 8 - len(finished_before)
+    summary = {}
+    for marker in done_dir.glob("*.json"):
+        summary.update(json.loads(marker.read_text()))
+    assert sorted(int(k) for k in summary) == list(range(16))  # none missing, none duplicated
+
+
+def test_bad_config_stops_with_named_key(tmp_path):
+    proc = run(tmp_path, *TINY, "-n", "--config", "n_moulds=-3", check=False)
+    assert proc.returncode != 0
+    assert "n_moulds" in proc.stderr + proc.stdout
+    proc = run(tmp_path, *TINY, "-n", "--config", "solvr=anneal", check=False)
+    assert proc.returncode != 0
+    assert "solvr" in proc.stderr + proc.stdout
+    assert not store_of(tmp_path).exists()

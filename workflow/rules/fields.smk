@@ -1,0 +1,42 @@
+# Stage 3: rasterise each simulation into the 8 fields and write the finished samples.
+
+
+rule fields:
+    input:
+        sims=f"{R}/sims/batch_{{batch}}",
+        moulds=f"{R}/moulds/batch_{{batch}}.json",
+        store=STORE_READY,
+    output:
+        f"{R}/fields/batch_{{batch}}.json",
+    log:
+        f"{R}/logs/fields/batch_{{batch}}.log",
+    resources:
+        runtime=10,
+        mem_mb=2000,
+    script:
+        "../scripts/fields.py"
+
+
+rule dataset:
+    input:
+        expand(f"{R}/fields/batch_{{batch}}.json", batch=BATCH_IDS),
+    output:
+        f"{R}/dataset_summary.csv",
+    log:
+        f"{R}/logs/dataset.log",
+    script:
+        "../scripts/dataset_summary.py"
+
+
+rule sample_figure:
+    input:
+        f"{R}/dataset_summary.csv",
+    output:
+        f"{R}/figures/samples.png",
+    log:
+        f"{R}/logs/sample_figure.log",
+    script:
+        "../scripts/sample_figure.py"
+
+
+FINAL_TARGETS.extend([*rules.dataset.output, *rules.sample_figure.output])

@@ -1,0 +1,43 @@
+# Stage 1: the store, then mould geometry + input channels per batch, and the gallery.
+
+
+rule init_store:
+    output:
+        STORE_READY,
+    log:
+        f"{R}/logs/init_store.log",
+    script:
+        "../scripts/init_store.py"
+
+
+rule moulds:
+    input:
+        STORE_READY,
+    output:
+        f"{R}/moulds/batch_{{batch}}.json",
+    params:
+        ids=batch_ids,
+    log:
+        f"{R}/logs/moulds/batch_{{batch}}.log",
+    resources:
+        runtime=10,
+        mem_mb=1000,
+    script:
+        "../scripts/moulds.py"
+
+
+rule gallery:
+    input:
+        expand(f"{R}/moulds/batch_{{batch}}.json", batch=BATCH_IDS),
+    output:
+        f"{R}/figures/mould_gallery.png",
+        f"{R}/figures/mould_regimes.csv",
+    params:
+        n=config["moulds"]["gallery"],
+    log:
+        f"{R}/logs/gallery.log",
+    script:
+        "../scripts/gallery.py"
+
+
+FINAL_TARGETS.extend(rules.gallery.output)

@@ -1,0 +1,1 @@
+# The report (filled in by the report stage).

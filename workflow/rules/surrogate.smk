@@ -1,0 +1,1 @@
+# Surrogate training and evaluation (filled in by the surrogate stage).
