@@ -701,11 +701,12 @@ def save_json(mould: Mould, path) -> None:
 
 def load_json(path) -> Mould:
     """Read and validate a mould file; errors (InvalidMouldError) name the file."""
+    text = Path(path).read_text()  # OSError (missing, unreadable) names the file itself
     try:
-        mould = Mould.from_dict(json.loads(Path(path).read_text()))
+        mould = Mould.from_dict(json.loads(text))
         validate_mould(mould)
-    except (ValueError, KeyError, TypeError) as error:
-        raise InvalidMouldError(f"{path}: {error}") from error
+    except Exception as error:  # any malformed content: JSON, keys, types, geometry
+        raise InvalidMouldError(f"{path} is not a valid mould file: {type(error).__name__}: {error}") from error
     return mould
 
 

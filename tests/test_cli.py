@@ -1,0 +1,84 @@
+"""The `condor` command line for the dataset stages, run as a user would (subprocess)."""
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from condor.fields import FIELD_NAMES
+from condor.moulds import load_json
+from condor.simulate import SimResult
+from condor.store import StoreSpec, assign_splits, create_store, write_inputs, write_sample
+
+
+def condor(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "condor.cli", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True)
+
+
+def test_mould_writes_geometry_and_picture(tmp_path):
+    proc = condor("mould", "--seed", 7, "--out", "m.json", "--png", "m.png", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    mould = load_json(tmp_path / "m.json")  # validates on load
+    assert mould.seed == 7 and mould.mould_id == 0
+    assert (tmp_path / "m.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    again = condor("mould", "--seed", 7, "--out", "m2.json", cwd=tmp_path)
+    assert again.returncode == 0
+    assert json.loads((tmp_path / "m.json").read_text()) == json.loads((tmp_path / "m2.json").read_text())
+
+
+@pytest.mark.parametrize("seed", ["-1", "seven", "1.5", str(2**64)])
+def test_bad_seed_is_named(tmp_path, seed):
+    proc = condor("mould", "--seed", seed, "--out", "m.json", cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "--seed" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert not (tmp_path / "m.json").exists()
+
+
+def test_simulate_then_rasterise_tiny(tmp_path):
+    assert condor("mould", "--seed", 3, "--id", 1, "--scene", "tiny", "--out", "m.json", cwd=tmp_path).returncode == 0
+    proc = condor("simulate", "m.json", "--scene", "tiny", "--out", "s.npz", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    result = SimResult.load(tmp_path / "s.npz")
+    assert result.status == "ok" and result.n_cells > 50
+    proc = condor("rasterise", "s.npz", "--scene", "tiny", "--out", "f.npy", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    fields = np.load(tmp_path / "f.npy")
+    assert fields.shape == (len(FIELD_NAMES), 32, 32)
+    # density integrates to the cell count (moulds keep clear of the box edge)
+    assert fields[0].sum() == pytest.approx(result.n_cells, rel=1e-3)
+
+
+def test_simulate_refuses_a_mould_from_another_scene(tmp_path):
+    condor("mould", "--seed", 3, "--scene", "tiny", "--out", "m.json", cwd=tmp_path)
+    proc = condor("simulate", "m.json", "--scene", "paper", "--out", "s.npz", cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "--scene" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_simulate_names_a_corrupt_mould_file(tmp_path):
+    (tmp_path / "m.json").write_text('{"polygon": "nonsense"}')
+    proc = condor("simulate", "m.json", "--out", "s.npz", cwd=tmp_path)
+    assert proc.returncode == 2
+    assert "m.json" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_check_store_lists_states(tmp_path):
+    store = tmp_path / "d.zarr"
+    create_store(store, StoreSpec(n_samples=4, pixels=8, seed=0, split=assign_splits(4, 1, 0.0, 0), attrs={}))
+    meta = {"seed": 0, "symmetry": "cyclic", "order": 2, "removal": "none", "n_tethers": 4}
+    sim = {"n_cells": 10, "energy": 0.0, "solver": "hybrid", "solver_seconds": 0.1}
+    for sample in (0, 1, 2):
+        write_inputs(store, sample, np.zeros((2, 8, 8), "uint8"), meta)
+    write_sample(store, 0, np.ones((8, 8, 8), "float32"), sim, "ok")
+    write_sample(store, 1, None, sim, "folded lattice")
+    proc = condor("check-store", store, cwd=tmp_path)
+    assert proc.returncode == 1  # not every sample is finished
+    assert "ok 1" in proc.stdout and "failed 1" in proc.stdout
+    assert "pending: 2" in proc.stdout and "missing: 3" in proc.stdout
+    assert "folded lattice" in proc.stdout
+    proc = condor("check-store", tmp_path / "nowhere.zarr", cwd=tmp_path)
+    assert proc.returncode == 2 and "no dataset store" in proc.stderr
