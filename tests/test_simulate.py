@@ -1,12 +1,13 @@
-"""Tests of simulate(): input errors, failure detection, stability cases, symmetry, I/O."""
+"""Tests of simulate(): input errors, failure detection, symmetry, I/O (hard cases: test_stability)."""
 
 import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
 from condor.energy import DELTA, total_energy
+from condor.fields import cell_fields, normalise
 from condor.lattice import build_lattice
-from condor.simulate import SOLVERS, SimResult, diagnose, simulate
+from condor.simulate import SOLVERS, SimResult, diagnose, simulate, simulate_lattice
 
 SQUARE = box(0, 0, 8, 6)
 TWO_POSTS = np.array([[2.0, 3.0, 0.8], [6.0, 3.0, 0.8]])
@@ -50,39 +51,6 @@ def test_save_load_roundtrip(tmp_path):
         assert getattr(back, name) == getattr(r, name)
 
 
-def test_schedule_far_too_fast_is_valid_but_far_from_the_minimum():
-    fast = simulate(SQUARE, TWO_POSTS, 2.0, "anneal", budget=1, seed=0)
-    good = simulate(SQUARE, TWO_POSTS, 2.0, "minimise", seed=0)
-    assert fast.status == "ok"  # a quench leaves a valid, unrelaxed network
-    assert fast.energy > 10 * good.energy
-
-
-def test_mould_without_tethers_contracts_freely():
-    r = simulate(SQUARE, np.zeros((0, 3)), 2.0, "minimise", seed=0)
-    assert r.status == "ok" and not r.fixed.any()
-    # nothing holds the network, so it reaches a nearly stress-free state (measured 5.8e-4 per
-    # cell against 0.14 at the start) and is in mean contracted (tension ~ 0)
-    assert r.energy_per_cell < 0.02 * r.info["start_energy"] / r.n_cells
-    assert np.abs(r.tension).mean() < 0.02
-    assert inside(r, SQUARE, np.zeros((0, 3)), 2.0)
-
-
-def test_thin_neck_stays_inside():
-    neck = box(0, 0, 5, 5).union(box(9, 0, 14, 5)).union(box(5, 2.2, 9, 2.8))  # 0.6 l0 neck
-    tethers = np.array([[2.5, 2.5, 0.8], [11.5, 2.5, 0.8]])
-    r = simulate(neck, tethers, 2.0, "hybrid", seed=0)
-    assert r.status == "ok", r.status
-    assert inside(r, neck, tethers, 2.0)
-    assert r.info["inverted_fraction"] < 0.01
-
-
-def test_tether_touching_the_wall():
-    tethers = np.array([[1.0, 3.0, 1.0], [7.5, 3.0, 1.0]])  # one tangent, one crossing the wall
-    r = simulate(SQUARE, tethers, 2.0, "hybrid", seed=0)
-    assert r.status == "ok", r.status
-    assert inside(r, SQUARE, tethers, 2.0)
-
-
 def test_failure_detection():
     lat = build_lattice(SQUARE, TWO_POSTS, 2.0)
     ori = np.tile([0.0, 0.0, 1.0], (lat.n_cells, 1))
@@ -101,22 +69,80 @@ def test_failure_detection():
     assert diagnose(lat, lat.positions, ori, e0, e0, {})["status_reason"] == "ok"
 
 
-def test_mirror_symmetric_mould_gives_mirror_symmetric_density():
-    """Orientation domains break the symmetry in each run; over seeds the density is symmetric.
+def _mirror_asymmetry(fields):
+    """Per channel: L1 norm of (f - f mirrored in x) / L1 norm of f."""
+    return np.abs(fields - fields[..., ::-1]).sum(axis=(-2, -1)) / np.abs(fields).sum(axis=(-2, -1))
 
-    Measured: one run's 6x4-bin density differs from its mirror image by 12-22% (L1); the
-    mean over 6 seeds by ~5-8%. Tolerance 12% for the mean, and asymmetry must shrink.
-    """
+
+def _trapezoid_fields(tethers, seeds):
+    """Normalised fields on a 24 px grid over [0, 12]^2, symmetric about x = 6 (pixel edges
+    at multiples of 0.5 l0), of the trapezoid mould for each seed."""
     poly = Polygon([(0, 0), (12, 0), (10, 8), (2, 8)])
-    tethers = np.array([[3.0, 2.0, 0.8], [9.0, 2.0, 0.8], [6.0, 6.0, 0.8]])
-    edges = (np.linspace(0, 12, 7), np.linspace(0, 8, 5))
-    hists = []
-    for seed in range(6):
+    out = []
+    for seed in seeds:
         r = simulate(poly, tethers, 2.0, "minimise", seed=seed)
-        assert r.status == "ok"
-        hists.append(np.histogram2d(r.positions[:, 0], r.positions[:, 1], edges)[0])
-    asym = lambda h: np.abs(h - h[::-1]).sum() / h.sum()
-    mean = np.mean(hists, axis=0)
-    print("single-run asymmetry", [round(asym(h), 3) for h in hists], "mean", round(asym(mean), 3))
-    assert asym(mean) < 0.12
-    assert asym(mean) < np.mean([asym(h) for h in hists])
+        assert r.status == "ok", r.status
+        f = cell_fields(r.positions, r.orientations, r.tension, 12.0, 24)
+        out.append(normalise(f.astype(np.float64), r.n_cells))
+    return np.array(out)
+
+
+def test_mirror_symmetric_mould_gives_mirror_symmetric_fields():
+    """Equilibrium respects the mirror symmetry up to noise: orientation domains break it in
+    each run, so the tolerance is stated for one run (P, T) and for the mean over 8 seeds
+    (P, T, and the sign-invariant Sx2, Sy2). Measured (8 seeds, minimise): one run P 4%
+    (max 9%), T 4% (max 10%), Sx2/Sy2 20% (max 59%); mean of 8 seeds P 1.5%, T 2.3%, Sx2/Sy2
+    9%. A control mould with one tether moved 1.5 l0 off the axis: P 12%, T 69%, Sx2 36%,
+    Sy2 57% (mean of 4 seeds)."""
+    tethers = np.array([[3.0, 2.0, 0.8], [9.0, 2.0, 0.8], [6.0, 6.0, 0.8]])
+    fields = _trapezoid_fields(tethers, range(8))
+    single = np.array([_mirror_asymmetry(f) for f in fields])
+    mean = _mirror_asymmetry(fields.mean(axis=0))
+    print("single-run P, T:", single[:, :2].round(3).tolist(), "mean of 8:", mean[:4].round(3))
+    p, t, sx2, sy2 = range(4)
+    assert single[:, [p, t]].max() < 0.15
+    assert mean[p] < 0.04 and mean[t] < 0.05
+    assert mean[sx2] < 0.15 and mean[sy2] < 0.15
+    # the tolerance can fail: the same mould with its top tether moved off the axis
+    moved = tethers.copy()
+    moved[2, 0] = 7.5
+    control = _mirror_asymmetry(_trapezoid_fields(moved, range(4)).mean(axis=0))
+    assert control[p] > 0.06 and control[t] > 0.2 and min(control[sx2], control[sy2]) > 0.2
+
+
+def test_simulate_lattice_checks_the_start_state():
+    lat = build_lattice(SQUARE, TWO_POSTS, 2.0)
+    ori = np.tile([0.0, 0.6, 0.8], (lat.n_cells, 1))
+    with pytest.raises(ValueError, match="shapes"):
+        simulate_lattice(lat, lat.positions[:-1], ori[:-1], "minimise")
+    bad = ori.copy()
+    bad[3, 1] = np.inf
+    with pytest.raises(ValueError, match="inf"):
+        simulate_lattice(lat, lat.positions, bad, "minimise")
+    same = lat.positions.copy()
+    same[lat.bond_i[0]] = same[lat.bond_j[0]]
+    with pytest.raises(ValueError, match="same point"):
+        simulate_lattice(lat, same, ori, "anneal", 1)
+    with pytest.raises(ValueError, match="ftol"):
+        simulate(SQUARE, TWO_POSTS, 2.0, "minimise", ftol=0.0)
+
+
+def test_ftol_sets_the_final_force():
+    loose = simulate(SQUARE, TWO_POSTS, 2.0, "minimise", seed=2, ftol=1e-3)
+    tight = simulate(SQUARE, TWO_POSTS, 2.0, "minimise", seed=2, ftol=1e-6)
+    assert loose.info["min_max_force"] < 1e-3 and tight.info["min_max_force"] < 1e-6
+    assert loose.info["min_iterations"] < tight.info["min_iterations"]
+    assert tight.energy <= loose.energy
+    # both from the same start reach the same minimum to a small fraction of its energy
+    assert loose.energy == pytest.approx(tight.energy, rel=1e-3)
+
+
+def test_a_bond_collapsing_during_the_solve_is_flagged_nonfinite(monkeypatch):
+    import condor.simulate as sim
+
+    def collapse(*args, **kwargs):
+        raise ZeroDivisionError("division by zero")
+
+    monkeypatch.setattr(sim, "_solve", collapse)
+    r = simulate(SQUARE, TWO_POSTS, 2.0, "minimise", seed=0)
+    assert r.status.startswith("nonfinite")

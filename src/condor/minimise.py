@@ -28,7 +28,7 @@ from condor.energy import DELTA, energy_gradient
 from condor.lattice import phi_grad_at
 
 K_WALL = 50.0  # kappa0, wall stiffness
-FTOL = 1.0e-4  # kappa0 l0, default force tolerance
+FTOL = 1.0e-3  # kappa0 l0, default force tolerance (energy within ~0.01% of the minimum)
 MAX_ITER = 20000  # default evaluation budget
 DT_INIT = 0.05
 DT_MAX = 0.2
@@ -85,8 +85,11 @@ def _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h,
 
 @numba.njit(cache=True)
 def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h, depth,
-                k_wall, max_iter, ftol, alpha_min):
-    """FIRE in place on pos, ori. Returns (E_bonds, E_wall, max force, evaluations)."""
+                k_wall, max_iter, ftol, alpha_min, dt_max, trace):
+    """FIRE in place on pos, ori. Returns (E_bonds, E_wall, max force, evaluations).
+
+    trace (K, 2): bond energy and max force of evaluation k for k < K (K = 0: no trace).
+    """
     n = pos.shape[0]
     nm = len(mobile)
     grad_pos = np.zeros((n, 3))
@@ -103,6 +106,9 @@ def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0
     while True:
         e, ew, fmax = _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0,
                               y0, h, depth, k_wall, grad_pos, grad_ori, f_pos, f_ori)
+        if it < trace.shape[0]:
+            trace[it, 0] = e
+            trace[it, 1] = fmax
         it += 1
         if fmax < ftol or it >= max_iter or not math.isfinite(e):
             break
@@ -122,7 +128,7 @@ def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0
                     v_ori[m, a] = (1.0 - alpha) * v_ori[m, a] + scale * f_ori[m, a]
             n_positive += 1
             if n_positive > N_MIN:
-                dt = min(dt * F_INC, DT_MAX)
+                dt = min(dt * F_INC, dt_max)
                 alpha = max(alpha * F_ALPHA, alpha_min)
         else:
             v_pos[:] = 0.0
@@ -177,10 +183,12 @@ def project_inside(pos, mobile, phi, x0, y0, h, depth):
 
 
 def minimise(lattice, positions, orientations, max_iter: int = MAX_ITER, ftol: float = FTOL,
-             k_wall: float = K_WALL, alpha_min: float = ALPHA_MIN, delta: float = DELTA):
+             k_wall: float = K_WALL, alpha_min: float = ALPHA_MIN, delta: float = DELTA,
+             dt_max: float = DT_MAX, trace: np.ndarray | None = None):
     """Minimise copies of (positions, orientations) with FIRE; return (pos, ori, info).
 
     max_iter: energy+gradient evaluations; ftol: largest per-cell force, kappa0 l0.
+    trace: optional float64 (K, 2) filled with (bond energy, max force) per evaluation.
     info: JSON-safe (iterations, max_force, wall penetration before projection, ...).
     """
     if max_iter < 1:
@@ -192,7 +200,8 @@ def minimise(lattice, positions, orientations, max_iter: int = MAX_ITER, ftol: f
     e, ew, fmax, iters = fire_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
         delta, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.depth, float(k_wall), int(max_iter),
-        float(ftol), float(alpha_min),
+        float(ftol), float(alpha_min), float(dt_max),
+        np.zeros((0, 2)) if trace is None else trace,
     )
     penetration = float(project_inside(pos, mobile, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.depth))
     info = {

@@ -10,9 +10,14 @@ and default of `budget`:
   * "hybrid":   a short anneal (budget = its moves per cell) that lets orientations find
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
 
-It raises ValueError for bad input only. A failed simulation returns a result whose `status`
-says why it must not be used (checked in this order):
-  * "nonfinite": NaN or inf in positions, orientations or energy;
+`ftol` (default minimise.FTOL) is FIRE's force tolerance. `simulate_lattice` runs a solver
+from a given start state (used by condor.stability and condor.tradeoff).
+
+It raises ValueError for bad input only (including a non-finite start state or bonded cells
+at the same point, which have no bond direction). A failed simulation returns a result whose
+`status` says why it must not be used (checked in this order):
+  * "nonfinite": NaN or inf in positions, orientations or energy (also a bond that collapsed
+    to zero length during the solve);
   * "runaway energy": the final energy exceeds the energy of the starting lattice;
   * "escaped": a mobile cell ended more than ESCAPE_TOL outside the allowed region (before
     the minimiser's final projection onto it);
@@ -107,21 +112,54 @@ def warm_up() -> None:
 
 
 def simulate(polygon, tethers, depth: float, solver: str = "hybrid",
-             budget: float | None = None, seed: int = 0) -> SimResult:
-    """Simulate one mould (polygon and tethers (n, 3) x, y, radius in l0; depth in l0)."""
-    if solver not in SOLVERS:
-        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
-    if budget is not None and (not np.isfinite(budget) or budget < 0):
-        raise ValueError(f"budget must be a non-negative number or None, got {budget!r}")
-    seed = int(seed)
+             budget: float | None = None, seed: int = 0, ftol: float | None = None) -> SimResult:
+    """Simulate one mould (polygon and tethers (n, 3) x, y, radius in l0; depth in l0).
+
+    ftol: the minimiser's force tolerance, kappa0 l0 (None: minimise.FTOL); ignored by "anneal".
+    """
+    _check_solver(solver, budget, ftol)
     lattice = build_lattice(polygon, tethers, depth)  # validates the rest
+    orientations = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
+    return simulate_lattice(lattice, lattice.positions, orientations, solver, budget, seed, ftol)
+
+
+def simulate_lattice(lattice: Lattice, positions, orientations, solver: str = "hybrid",
+                     budget: float | None = None, seed: int = 0,
+                     ftol: float | None = None) -> SimResult:
+    """Run a solver on `lattice` from a given start state (positions, orientations (N, 3)).
+
+    `simulate` starts from the lattice with random orientations; this entry point serves
+    studies that start elsewhere (a folded or NaN state in `condor.stability`). The start
+    energy (for the runaway check) is that of the given state.
+    """
+    _check_solver(solver, budget, ftol)
+    seed = int(seed)
     warm_up()
     used_budget = DEFAULT_BUDGET[solver] if budget is None else float(budget)
-    orientations = random_orientations(lattice.n_cells, np.random.default_rng([seed, 1]))
-    start_energy = lattice_energy(lattice, lattice.positions, orientations)
+    pos0 = np.array(positions, dtype=np.float64, order="C")
+    ori0 = np.array(orientations, dtype=np.float64, order="C")
+    if pos0.shape != lattice.positions.shape or ori0.shape != lattice.positions.shape:
+        raise ValueError(f"start state shapes {pos0.shape}, {ori0.shape} do not match the "
+                         f"lattice's {lattice.positions.shape}")
+    for name, array in (("positions", pos0), ("orientations", ori0)):
+        if not np.all(np.isfinite(array)):
+            bad = np.argwhere(~np.isfinite(array))[0]
+            raise ValueError(f"start {name} must be finite, got {array[tuple(bad)]} "
+                             f"at {bad.tolist()}")
+    lengths = np.linalg.norm(pos0[lattice.bond_j] - pos0[lattice.bond_i], axis=1)
+    if np.any(lengths == 0):
+        b = int(np.argmin(lengths))
+        i, j = lattice.bond_i[b], lattice.bond_j[b]
+        raise ValueError(f"start positions put bonded cells {i} and {j} at the same point "
+                         f"{pos0[i].tolist()}")
+    start_energy = lattice_energy(lattice, pos0, ori0)
 
     t0 = time.process_time()
-    pos, ori, info = _solve(lattice, orientations, solver, used_budget, seed)
+    try:
+        pos, ori, info = _solve(lattice, pos0, ori0, solver, used_budget, seed,
+                                minimise_mod.FTOL if ftol is None else float(ftol))
+    except ZeroDivisionError:  # numba's 1/|l| on a bond that collapsed to zero length
+        pos, ori, info = np.full_like(pos0, np.nan), ori0, {"error": "zero-length bond"}
     seconds = time.process_time() - t0
 
     energy = lattice_energy(lattice, pos, ori)
@@ -141,17 +179,27 @@ def simulate(polygon, tethers, depth: float, solver: str = "hybrid",
     )
 
 
-def _solve(lattice: Lattice, orientations: np.ndarray, solver: str, budget: float, seed: int):
-    """Run one solver from the lattice; return (positions, orientations, info)."""
-    pos, ori, info = lattice.positions, orientations, {}
+def _check_solver(solver: str, budget, ftol) -> None:
+    if solver not in SOLVERS:
+        raise ValueError(f"unknown solver {solver!r}; choose one of {SOLVERS}")
+    if budget is not None and (not np.isfinite(budget) or budget < 0):
+        raise ValueError(f"budget must be a non-negative number or None, got {budget!r}")
+    if ftol is not None and (not np.isfinite(ftol) or ftol <= 0):
+        raise ValueError(f"ftol must be a positive force (kappa0 l0) or None, got {ftol!r}")
+
+
+def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ftol: float):
+    """Run one solver from (pos, ori); return (positions, orientations, info)."""
+    info = {}
     if solver in ("anneal", "hybrid"):
         pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2])
         info.update(info_a)
     if solver == "minimise":
-        pos, ori, info_m = minimise_mod.minimise(lattice, pos, ori, max_iter=max(int(budget), 1))
+        pos, ori, info_m = minimise_mod.minimise(lattice, pos, ori, max_iter=max(int(budget), 1),
+                                                 ftol=ftol)
         info.update(info_m)
     elif solver == "hybrid":
-        pos, ori, info_m = minimise_mod.minimise(lattice, pos, ori)
+        pos, ori, info_m = minimise_mod.minimise(lattice, pos, ori, ftol=ftol)
         info.update(info_m)
     return pos, ori, info
 
