@@ -1,1 +1,119 @@
-# Surrogate training and evaluation (filled in by the surrogate stage).
+# Stage 4: train each surrogate variant named in config["surrogate"]["variants"], evaluate it
+# on the test split, evaluate the baselines once, and gather one summary table.
+from condor.surrogate.variants import workflow_variants
+
+SURROGATE = config["surrogate"]
+VARIANTS = workflow_variants(config)  # {name: settings}; raises for an undefined name
+EVAL_MODES = SURROGATE["eval_modes"]
+EVALUATION = f"{R}/evaluation"
+
+
+wildcard_constraints:
+    variant="|".join(VARIANTS) or "(?!)",
+
+
+def evaluation_tables(method_prefix):
+    """The per-method CSV tables `condor.surrogate.evaluate` writes into one folder."""
+    return [f"{method_prefix}_{table}.csv" for table in ("mae", "correlations")]
+
+
+rule train:
+    input:
+        rules.dataset.output,
+    output:
+        checkpoint=f"{R}/models/{{variant}}.pt",
+        history=f"{R}/models/{{variant}}_history.csv",
+    params:
+        settings=lambda wildcards: VARIANTS[wildcards.variant],
+        device=SURROGATE["device"],
+    log:
+        f"{R}/logs/train/{{variant}}.log",
+    threads: SURROGATE["threads"]
+    resources:
+        runtime=24 * 60,
+        mem_mb=8000,
+        gpu=SURROGATE["gpus"],
+    script:
+        "../scripts/train.py"
+
+
+rule evaluate:
+    input:
+        checkpoint=f"{R}/models/{{variant}}.pt",
+        dataset=rules.dataset.output,
+    output:
+        summary=f"{EVALUATION}/{{variant}}/summary.csv",
+        tables=[t for mode in EVAL_MODES
+                for t in evaluation_tables(f"{EVALUATION}/{{variant}}/{{variant}}_{mode}")],
+        figures=report(
+            directory(f"{EVALUATION}/{{variant}}/figures"),
+            patterns=["{name}.png"],
+            caption="../report/surrogate_evaluation.rst",
+            category="Surrogate",
+            subcategory="{variant}",
+        ),
+    params:
+        modes=EVAL_MODES,
+        device=SURROGATE["device"],
+    log:
+        f"{R}/logs/evaluate/{{variant}}.log",
+    threads: SURROGATE["threads"]
+    resources:
+        runtime=60,
+        mem_mb=8000,
+        gpu=SURROGATE["gpus"],
+    script:
+        "../scripts/evaluate.py"
+
+
+rule evaluate_baselines:
+    input:
+        rules.dataset.output,
+    output:
+        summary=f"{EVALUATION}/baselines/summary.csv",
+        tables=[t for method in ("masked_mean", "mould_blur")
+                for t in evaluation_tables(f"{EVALUATION}/baselines/{method}")],
+        figures=report(
+            directory(f"{EVALUATION}/baselines/figures"),
+            patterns=["{name}.png"],
+            caption="../report/surrogate_baselines.rst",
+            category="Surrogate",
+            subcategory="baselines",
+        ),
+    log:
+        f"{R}/logs/evaluate/baselines.log",
+    resources:
+        runtime=30,
+        mem_mb=4000,
+    script:
+        "../scripts/evaluate.py"
+
+
+rule surrogate_summary:
+    input:
+        expand(f"{EVALUATION}/{{variant}}/summary.csv", variant=list(VARIANTS)),
+        f"{EVALUATION}/baselines/summary.csv",
+    output:
+        report(
+            f"{EVALUATION}/summary.csv",
+            caption="../report/surrogate_summary.rst",
+            category="Surrogate",
+        ),
+    log:
+        f"{R}/logs/evaluate/summary.log",
+    script:
+        "../scripts/evaluate.py"
+
+
+localrules:
+    surrogate_summary,
+
+
+FINAL_TARGETS.extend(
+    [
+        *rules.surrogate_summary.output,
+        *expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
+        *expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
+        f"{EVALUATION}/baselines/figures",
+    ]
+)

@@ -5,12 +5,15 @@ from .baselines import MaskedMeanBaseline, MouldBlurBaseline
 from .checkpoint import (CheckpointError, CheckpointMismatchError, CheckpointNotFoundError,
                          load_checkpoint)
 from .data import FieldScaling, compute_scaling, resample_fields, resample_masks, usable_samples
-from .evaluate import evaluate, evaluate_predictions, pearson_r
+from .evaluate import (combine_summaries, evaluate, evaluate_baselines, evaluate_predictions,
+                       pearson_r)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator,
                      count_parameters_like_paper, paper_discriminator, paper_generator,
                      set_prediction_mode)
-from .predict import Prediction, Predictor, plot_prediction, predict
+from .predict import (Prediction, Predictor, plot_prediction, predict, read_mould_inputs,
+                      write_prediction)
 from .train import MODEL_KINDS, TrainConfig, train
+from .variants import train_config, workflow_variants
 
 __all__ = [
     "MaskedMeanBaseline", "MouldBlurBaseline", "CheckpointError", "CheckpointMismatchError",
@@ -19,5 +22,6 @@ __all__ = [
     "pearson_r", "PREDICTION_MODES", "PatchConfig", "PatchDiscriminator", "UNetConfig",
     "UNetGenerator", "count_parameters_like_paper", "paper_discriminator", "paper_generator",
     "set_prediction_mode", "Prediction", "Predictor", "plot_prediction", "predict",
-    "MODEL_KINDS", "TrainConfig", "train",
+    "MODEL_KINDS", "TrainConfig", "train", "combine_summaries", "evaluate_baselines",
+    "read_mould_inputs", "write_prediction", "train_config", "workflow_variants",
 ]

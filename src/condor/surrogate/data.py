@@ -42,6 +42,21 @@ def check_dataset(ds) -> None:
                          f"{CHANNEL_NAMES}")
 
 
+def dataset_pixel_size(ds) -> float:
+    """Pixel side in l0 from the dataset's attributes ("pixel_size", or the scene)."""
+    for key in ("pixel_size", "pixel_size_l0"):
+        if key in ds.attrs:
+            return float(ds.attrs[key])
+    scene = ds.attrs.get("scene")
+    if isinstance(scene, dict) and "box" in scene:
+        return float(scene["box"]) / int(ds.sizes["x"])
+    if isinstance(scene, str):
+        from condor.scenes import get_scene
+        return get_scene(scene).box / int(ds.sizes["x"])
+    raise ValueError(f"cannot tell the pixel size: dataset attributes {sorted(ds.attrs)} have no "
+                     "'pixel_size' or 'scene'; pass pixel_size=")
+
+
 # --- resampling ----------------------------------------------------------------------------
 
 def _factor(size_from: int, size_to: int) -> tuple[int, bool]:

@@ -5,6 +5,7 @@ of simulation against prediction with their Pearson r, next to the paper's value
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -12,7 +13,7 @@ import numpy as np
 import pandas as pd
 
 from .baselines import MaskedMeanBaseline, MouldBlurBaseline
-from .data import FIELD_NAMES, check_dataset, usable_samples
+from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, usable_samples
 from .predict import Predictor
 
 # The paper's Pearson r (Results): 0.881 for mean density, "above 0.98" for the others.
@@ -198,21 +199,6 @@ def write_figures(ev: Evaluation, true: np.ndarray, pred: np.ndarray, out_dir) -
 
 # --- the whole evaluation ------------------------------------------------------------------
 
-def dataset_pixel_size(ds) -> float:
-    """Pixel side in l0 from the dataset's attributes ("pixel_size", or the scene)."""
-    for key in ("pixel_size", "pixel_size_l0"):
-        if key in ds.attrs:
-            return float(ds.attrs[key])
-    scene = ds.attrs.get("scene")
-    if isinstance(scene, dict) and "box" in scene:
-        return float(scene["box"]) / int(ds.sizes["x"])
-    if isinstance(scene, str):
-        from condor.scenes import get_scene
-        return get_scene(scene).box / int(ds.sizes["x"])
-    raise ValueError(f"cannot tell the pixel size: dataset attributes {sorted(ds.attrs)} have no "
-                     "'pixel_size' or 'scene'; pass pixel_size=")
-
-
 def _arrays(ds, indices) -> tuple[np.ndarray, np.ndarray, list]:
     sel = ds.isel(sample=indices)
     ids = list(sel["sample"].values) if "sample" in sel.coords else list(indices)
@@ -220,35 +206,29 @@ def _arrays(ds, indices) -> tuple[np.ndarray, np.ndarray, list]:
             np.asarray(sel["fields"].values, dtype=np.float32), ids)
 
 
-def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
-             baselines: bool = True, pixel_size: float | None = None, statistics_fn=None,
-             device=None) -> dict:
-    """Evaluate a checkpoint (in each prediction mode of `modes`, default the checkpoint's
-    own and "train", as reference pix2pix predicts) and the baselines on `split`.
-
-    Returns {"evaluations": {method: Evaluation}, "summary": DataFrame (method rows)}; with
-    `out_dir`, also writes per-sample MAE CSVs, correlation CSVs, summary.csv and figures.
-    """
+def _test_arrays(ds, split: str):
     check_dataset(ds)
-    pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
     test_idx = usable_samples(ds, split)
     if len(test_idx) == 0:
         raise ValueError(f"dataset has no usable samples in split {split!r}")
-    inputs, true, ids = _arrays(ds, test_idx)
-    predictor = Predictor(checkpoint_path, device=device)
-    modes = modes or list(dict.fromkeys([predictor.mode, "train"]))
-    kind = predictor.state["config"]["model"]
-    predictions = {}
-    for mode in modes:
-        predictor.mode = mode
-        predictions[f"{kind}_{mode}"] = predictor(inputs).raw
-    if baselines:
-        train_inputs, train_fields, _ = _arrays(ds, usable_samples(ds, "train"))
-        for baseline in (MaskedMeanBaseline(), MouldBlurBaseline(pixel_size)):
-            predictions[baseline.name] = baseline.fit(train_inputs, train_fields).predict(inputs)
+    return _arrays(ds, test_idx)
+
+
+def _timed(fn, n: int):
+    """fn() and its wall seconds per mould (n moulds)."""
+    t0 = time.perf_counter()
+    result = fn()
+    return result, (time.perf_counter() - t0) / max(n, 1)
+
+
+def _finish(predictions: dict, seconds: dict, true, ids, pixel_size, statistics_fn, out_dir,
+            figure_dir) -> dict:
+    """Metrics for every method; with out_dir, summary.csv, <method>_mae.csv and
+    <method>_correlations.csv there and the figures in figure_dir (default out_dir)."""
     evaluations = {m: evaluate_predictions(p, true, ids, pixel_size, m, statistics_fn)
                    for m, p in predictions.items()}
-    summary = pd.DataFrame([ev.summary() for ev in evaluations.values()]).set_index("method")
+    summary = pd.DataFrame([{**ev.summary(), "seconds_per_mould": seconds[m]}
+                            for m, ev in evaluations.items()]).set_index("method")
     if out_dir is not None:
         out = Path(out_dir)
         out.mkdir(parents=True, exist_ok=True)
@@ -256,5 +236,87 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
         for method, ev in evaluations.items():
             ev.mae.to_csv(out / f"{method}_mae.csv")
             ev.correlations.to_csv(out / f"{method}_correlations.csv")
-            write_figures(ev, true, predictions[method], out)
+            write_figures(ev, true, predictions[method], figure_dir or out)
     return {"evaluations": evaluations, "summary": summary}
+
+
+def baseline_predictions(ds, inputs: np.ndarray, pixel_size: float) -> tuple[dict, dict]:
+    """Each baseline fitted on the "train" split and applied to `inputs`:
+    ({name: fields}, {name: prediction seconds per mould})."""
+    train_inputs, train_fields, _ = _arrays(ds, usable_samples(ds, "train"))
+    predictions, seconds = {}, {}
+    for baseline in (MaskedMeanBaseline(), MouldBlurBaseline(pixel_size)):
+        fitted = baseline.fit(train_inputs, train_fields)
+        predictions[baseline.name], seconds[baseline.name] = _timed(
+            lambda: fitted.predict(inputs), len(inputs))
+    return predictions, seconds
+
+
+def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
+             baselines: bool = True, pixel_size: float | None = None, statistics_fn=None,
+             device=None, name: str | None = None, figure_dir=None) -> dict:
+    """Evaluate a checkpoint (in each prediction mode of `modes`, default the checkpoint's
+    own and "train", as reference pix2pix predicts) and the baselines on `split`.
+
+    Methods are named f"{name}_{mode}" (name defaults to the checkpoint's model kind).
+    Returns {"evaluations": {method: Evaluation}, "summary": DataFrame (method rows, with
+    seconds_per_mould: wall time of the whole-split prediction / moulds)}; with `out_dir`,
+    also writes per-sample MAE CSVs, correlation CSVs, summary.csv, and figures (into
+    `figure_dir`, default out_dir).
+    """
+    inputs, true, ids = _test_arrays(ds, split)
+    pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
+    predictor = Predictor(checkpoint_path, device=device)
+    modes = modes or list(dict.fromkeys([predictor.mode, "train"]))
+    name = name or predictor.state["config"]["model"]
+    predictions, seconds = {}, {}
+    for mode in modes:
+        predictor.mode = mode
+        method = f"{name}_{mode}"
+        predictions[method], seconds[method] = _timed(lambda: predictor(inputs).raw, len(inputs))
+    if baselines:
+        more, more_seconds = baseline_predictions(ds, inputs, pixel_size)
+        predictions.update(more)
+        seconds.update(more_seconds)
+    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir, figure_dir)
+
+
+def evaluate_baselines(ds, out_dir=None, split: str = "test", pixel_size: float | None = None,
+                       statistics_fn=None, figure_dir=None) -> dict:
+    """The baselines alone, with the same metrics and files as `evaluate`."""
+    inputs, true, ids = _test_arrays(ds, split)
+    pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
+    predictions, seconds = baseline_predictions(ds, inputs, pixel_size)
+    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir, figure_dir)
+
+
+def combine_summaries(paths) -> pd.DataFrame:
+    """Concatenate summary.csv files (one row per method) into one table; a method that
+    appears twice raises ValueError naming it."""
+    frame = pd.concat([pd.read_csv(p, index_col="method") for p in paths])
+    repeated = frame.index[frame.index.duplicated()].unique().tolist()
+    if repeated:
+        raise ValueError(f"method(s) {repeated} appear in more than one summary")
+    return frame
+
+
+def format_summary(summary: pd.DataFrame, field_names=FIELD_NAMES) -> str:
+    """Text table: mean MAE per field (columns) for each method (rows), with the mean over
+    fields and the ratio of each method's mean MAE to the best baseline's."""
+    columns = [f"mae_{k}" for k in field_names] + ["mae_mean"]
+    table = summary[columns].rename(columns=lambda c: c[4:])
+    baselines = [m for m in ("masked_mean", "mould_blur") if m in table.index]
+    if baselines:
+        table["vs_best_baseline"] = table["mean"] / table.loc[baselines, "mean"].min()
+    if "seconds_per_mould" in summary:
+        table["ms_per_mould"] = summary["seconds_per_mould"] * 1e3
+    return table.to_string(float_format=lambda v: f"{v:.4g}")
+
+
+def format_correlations(summary: pd.DataFrame) -> str:
+    """Text table: Pearson r per statistic (rows) for each method (columns) and the paper's."""
+    r_columns = [c for c in summary.columns if c.startswith("r_")]
+    table = summary[r_columns].T.rename(index=lambda c: c[2:])
+    table["paper"] = [("= " if paper_r(s)[1] == "=" else "> ") + f"{paper_r(s)[0]:g}"
+                      for s in table.index]
+    return table.to_string(float_format=lambda v: f"{v:.3f}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 
 import numpy as np
@@ -70,6 +71,16 @@ class Predictor:
         self.mode = mode or state["config"].get("prediction_mode", "eval")
         self.state = state
 
+    @property
+    def pixel_size(self) -> float | None:
+        """Pixel side (l0) of the training grid; None for a checkpoint that did not record it."""
+        return self.state["data"].get("pixel_size")
+
+    @property
+    def box(self) -> float | None:
+        """Box side (l0) of the training scene, or None when unknown."""
+        return None if self.pixel_size is None else self.pixel_size * self.native
+
     def __call__(self, inputs, batch_size: int = 16) -> Prediction:
         inputs = np.asarray(inputs)
         single = inputs.ndim == 3
@@ -117,3 +128,128 @@ def plot_prediction(inputs: np.ndarray, fields: np.ndarray, path=None, title: st
         fig.savefig(path, dpi=100)
         plt.close(fig)
     return fig
+
+
+# --- reading moulds, writing predictions (the `condor predict` command) -------------------
+
+def _binary(mask: np.ndarray, what: str) -> np.ndarray:
+    values = np.unique(mask)
+    if not np.isin(values, (0, 1)).all():
+        raise ValueError(f"{what} must hold 0/1 values, found {values[:6].tolist()}")
+    return mask.astype(np.uint8)
+
+
+def _png_channels(path) -> np.ndarray:
+    """A picture -> (2, H, W) 0/1: channels (mould, tether) from grey+alpha ("LA") or from
+    red and green (RGB/RGBA); a pixel is set where the channel is >= 50%. Row 0 of the
+    picture is the top, i.e. the highest y (pictures are drawn with origin="lower")."""
+    from PIL import Image
+
+    with Image.open(path) as image:
+        mode = image.mode
+        if mode not in ("LA", "RGB", "RGBA"):
+            raise ValueError(f"{path}: picture mode {mode!r} has no two channels; expected LA, "
+                             "RGB or RGBA (mould in the first channel, tether in the second)")
+        pixels = np.asarray(image)
+    return (pixels[::-1, :, :2].transpose(2, 0, 1) >= 128).astype(np.uint8)
+
+
+def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray:
+    """Input channels (2, pixels, pixels) uint8 for the mould in `path`:
+
+    - .json: a mould from `condor mould` / `condor.moulds.save_json`, rasterised with
+      `condor.moulds.input_channels` (its box must equal `box` in l0, when given);
+    - .npy: a (2, H, W) 0/1 array (mould, tether);
+    - .png: a two-channel picture (see _png_channels).
+    Arrays at another resolution are resampled when the ratio is an integer."""
+    from pathlib import Path
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".json":
+        from condor.moulds import input_channels, load_json
+
+        mould = load_json(path)
+        if box is not None and abs(mould.box - box) > 1e-6 * box:
+            raise ValueError(f"{path} is a mould for a {mould.box:g} l0 box, the checkpoint was "
+                             f"trained on a {box:g} l0 box")
+        return input_channels(mould, pixels)
+    if suffix == ".npy":
+        array = np.load(path, allow_pickle=False)
+    elif suffix == ".png":
+        array = _png_channels(path)
+    else:
+        raise ValueError(f"mould file {str(path)!r} must end in .json, .npy or .png")
+    if array.ndim != 3 or array.shape[0] != 2 or array.shape[1] != array.shape[2]:
+        raise ValueError(f"{path}: inputs must have shape (2, H, H), got {array.shape}")
+    array = _binary(array, str(path))
+    try:
+        return resample_masks(array, pixels)
+    except ValueError as err:
+        raise ValueError(f"{path}: {err}") from err
+
+
+def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
+                       attrs: dict | None = None):
+    """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `inputs`
+    (channel, y, x), x/y pixel centres in l0 (in pixels when pixel_size is None)."""
+    import xarray as xr
+
+    n = inputs.shape[-1]
+    step = 1.0 if pixel_size is None else float(pixel_size)
+    centres = (np.arange(n) + 0.5) * step
+    return xr.Dataset(
+        {"raw": (("field", "y", "x"), prediction.raw),
+         "normalised": (("field", "y", "x"), prediction.normalised),
+         "inputs": (("channel", "y", "x"), np.asarray(inputs, dtype=np.uint8))},
+        coords={"field": list(FIELD_NAMES), "channel": ["mould", "tether"], "y": centres,
+                "x": centres},
+        attrs={"n_cells": float(prediction.n_cells),
+               "length_unit": "l0" if pixel_size is not None else "pixel", **(attrs or {})})
+
+
+def plot_raw_and_normalised(inputs: np.ndarray, prediction: Prediction, path, title: str = ""):
+    """Figure: the inputs, then each field raw (middle row) and normalised (bottom row)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(FIELD_NAMES)
+    fig, axes = plt.subplots(3, n, figsize=(2.2 * n, 6.6))
+    rows = [[("mould", inputs[0]), ("tether", inputs[1])],
+            [(f"{k} raw", f) for k, f in zip(FIELD_NAMES, prediction.raw)],
+            [(f"{k} normalised", f) for k, f in zip(FIELD_NAMES, prediction.normalised)]]
+    for ax_row, panels in zip(axes, rows):
+        for ax in ax_row:
+            ax.axis("off")
+        for ax, (name, image) in zip(ax_row, panels):
+            ax.axis("on")
+            im = ax.imshow(image, origin="lower", cmap="viridis")
+            ax.set_title(name, fontsize=8)
+            ax.set_xticks([]), ax.set_yticks([])
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle(title)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
+                     pixel_size: float | None = None, attrs: dict | None = None) -> None:
+    """Write a prediction to `path`: a .zarr store (xarray, see prediction_dataset) or a
+    .png picture; ValueError for another suffix."""
+    from pathlib import Path
+
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix == ".zarr":
+        with warnings.catch_warnings():
+            # zarr 3 warns that string coordinates and consolidated metadata are outside the
+            # v3 spec; xarray reads both back.
+            warnings.filterwarnings("ignore", module="zarr")
+            prediction_dataset(prediction, inputs, pixel_size, attrs).to_zarr(path, mode="w")
+    elif suffix == ".png":
+        title = f"predicted fields, N_c = {float(prediction.n_cells):.1f}"
+        plot_raw_and_normalised(inputs, prediction, path, title)
+    else:
+        raise ValueError(f"--out {str(path)!r} must end in .zarr or .png")

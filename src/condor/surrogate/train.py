@@ -22,7 +22,7 @@ from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
 from .data import (CHANNEL_NAMES, FIELD_NAMES, SampleSource, check_dataset, compute_scaling,
-                   usable_samples)
+                   dataset_pixel_size, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss, l1_loss)
 from .predict import default_device, run_generator
@@ -118,9 +118,13 @@ def _epoch_seed(seed: int, epoch: int) -> int:
 def _data_signature(ds, train_idx: np.ndarray) -> dict:
     ids = ds["sample"].values[train_idx] if "sample" in ds.coords else train_idx
     digest = hashlib.sha1(np.asarray(ids).astype(str).tobytes()).hexdigest()[:16]
-    return {"native_size": int(ds.sizes["x"]), "field_names": list(FIELD_NAMES),
-            "channel_names": list(CHANNEL_NAMES), "n_train": int(len(train_idx)),
-            "train_ids_sha1": digest}
+    try:  # recorded so that prediction can check a mould's box against the training grid
+        pixel_size = dataset_pixel_size(ds)
+    except ValueError:
+        pixel_size = None
+    return {"native_size": int(ds.sizes["x"]), "pixel_size": pixel_size,
+            "field_names": list(FIELD_NAMES), "channel_names": list(CHANNEL_NAMES),
+            "n_train": int(len(train_idx)), "train_ids_sha1": digest}
 
 
 def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:

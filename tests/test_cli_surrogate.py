@@ -1,0 +1,181 @@
+"""`condor train`, `condor evaluate` and `condor predict` on a real-format store holding the
+synthetic dataset (condor.surrogate.synthetic), through the CLI's `main`."""
+
+import numpy as np
+import pandas as pd
+import pytest
+import xarray as xr
+from PIL import Image
+
+from condor import cli
+from condor.moulds import input_channels, load_json
+from condor.store import StoreSpec, create_store, open_dataset, write_inputs, write_sample
+from condor.surrogate.checkpoint import load_checkpoint
+from condor.surrogate.models import PREDICTION_MODES
+from condor.surrogate.predict import predict
+from condor.surrogate.synthetic import synthetic_dataset
+from condor.surrogate.train import MODEL_KINDS
+
+SIZE = 32
+BOX = 31.25  # the `default` scene's box, so that `condor mould` moulds fit the checkpoint
+FAST = ["--base", "8", "--batch-size", "4", "--lr", "2e-3", "--threads", "1"]
+
+
+def write_store(path, ds, box=BOX):
+    """The synthetic samples in a store made by condor.store, as the workflow writes it."""
+    n, size = ds.sizes["sample"], ds.sizes["x"]
+    spec = StoreSpec(n_samples=n, pixels=size, seed=0, split=tuple(ds["split"].values.astype(str)),
+                     attrs={"pixel_size": box / size, "scene": {"name": "synthetic", "box": box}})
+    create_store(path, spec)
+    for i in range(n):
+        write_inputs(path, i, ds["inputs"].values[i],
+                     {"seed": 0, "symmetry": "none", "order": 1, "removal": "none", "n_tethers": 1})
+        write_sample(path, i, ds["fields"].values[i],
+                     {"n_cells": int(ds["n_cells"].values[i]), "energy": 0.0, "solver": "synthetic",
+                      "solver_seconds": 0.0}, "ok")
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    """A store and a checkpoint trained on it by `condor train` (2 epochs, then resumed to 3)."""
+    root = tmp_path_factory.mktemp("cli")
+    store, checkpoint = root / "data.zarr", root / "m.pt"
+    write_store(store, synthetic_dataset(16, SIZE, splits=("train",) * 6 + ("val", "test")))
+    cli.main(["train", "--store", str(store), "--checkpoint", str(checkpoint), "--epochs", "2", *FAST])
+    return store, checkpoint
+
+
+def run_main(argv):
+    with pytest.raises(SystemExit) as exit_info:
+        cli.main(argv)
+    return exit_info.value.code
+
+
+def test_parser_choices_agree_with_library():
+    assert cli.MODEL_KINDS == MODEL_KINDS and cli.PREDICTION_MODES == PREDICTION_MODES
+
+
+def test_train_writes_checkpoint_and_resumes(trained, capsys):
+    store, checkpoint = trained
+    state = load_checkpoint(checkpoint)
+    assert state["epoch"] == 2 and state["config"]["model"] == "unet_l1"
+    assert state["generator_config"]["size"] == SIZE and state["generator_config"]["base"] == 8
+    assert state["data"]["pixel_size"] == pytest.approx(BOX / SIZE)
+    assert state["data"]["n_train"] == 12  # 6 of every 8 samples are "train"
+    cli.main(["train", "--store", str(store), "--checkpoint", str(checkpoint), "--epochs", "3", *FAST])
+    out = capsys.readouterr().out
+    assert "resuming from" in out and "epoch 3/3" in out and "epoch 1/3" not in out
+    assert "val_mae" in out
+    assert load_checkpoint(checkpoint)["epoch"] == 3
+    # A different architecture cannot resume: one line on stderr, exit status 2.
+    code = run_main(["train", "--store", str(store), "--checkpoint", str(checkpoint),
+                     "--epochs", "4", *FAST[:-4], "--base", "16"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "cannot resume" in err and "unet" in err
+
+
+def test_missing_checkpoint_is_one_line_and_exit_2(trained, tmp_path, capsys):
+    store, _ = trained
+    missing = tmp_path / "nope.pt"
+    for argv in (["evaluate", "--store", str(store), "--checkpoint", str(missing), "--out",
+                  str(tmp_path / "ev")],
+                 ["predict", str(tmp_path / "m.npy"), "--checkpoint", str(missing), "--out",
+                  str(tmp_path / "f.zarr")]):
+        code = run_main(argv)
+        err = capsys.readouterr().err
+        assert code == 2
+        assert err.count("\n") == 1 and "nope.pt" in err and "does not exist" in err
+    assert not (tmp_path / "ev").exists()
+
+
+def test_missing_store_is_one_line_and_exit_2(tmp_path, capsys):
+    code = run_main(["train", "--store", str(tmp_path / "none.zarr"), "--checkpoint",
+                     str(tmp_path / "m.pt")])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "none.zarr" in err
+
+
+def test_evaluate_writes_tables_figures_and_baselines(trained, tmp_path, capsys):
+    store, checkpoint = trained
+    out = tmp_path / "ev"
+    cli.main(["evaluate", "--store", str(store), "--checkpoint", str(checkpoint), "--out", str(out),
+              "--modes", "eval"])
+    printed = capsys.readouterr().out
+    summary = pd.read_csv(out / "summary.csv", index_col="method")
+    assert list(summary.index) == ["unet_l1_eval", "masked_mean", "mould_blur"]
+    # The MAE table agrees with a direct computation from the store and the checkpoint.
+    ds = open_dataset(store)
+    test = np.flatnonzero(ds["split"].values.astype(str) == "test")
+    truth = ds["fields"].values[test]
+    pred = predict(checkpoint, ds["inputs"].values[test], mode="eval").raw
+    expect = np.abs(pred.astype(np.float64) - truth).mean(axis=(0, 2, 3))
+    got = summary.loc["unet_l1_eval", [f"mae_{k}" for k in ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy",
+                                                              "SxSz", "SySz")]].to_numpy(float)
+    np.testing.assert_allclose(got, expect, rtol=1e-5)
+    per_sample = pd.read_csv(out / "unet_l1_eval_mae.csv", index_col="sample")
+    assert sorted(per_sample.index) == sorted(test.tolist())
+    for name in ("unet_l1_eval_Sx2_best.png", "unet_l1_eval_T_worst.png",
+                 "unet_l1_eval_statistics.png", "mould_blur_mae_distribution.png"):
+        assert (out / name).stat().st_size > 2000
+    assert "masked_mean" in printed and "mould_blur" in printed and "paper" in printed
+    assert "0.881" in printed
+
+
+def test_predict_from_mould_json_writes_zarr(trained, tmp_path, capsys):
+    _, checkpoint = trained
+    mould_json = tmp_path / "m.json"
+    cli.main(["mould", "--seed", "7", "--id", "0", "--out", str(mould_json)])
+    out = tmp_path / "fields.zarr"
+    cli.main(["predict", str(mould_json), "--checkpoint", str(checkpoint), "--out", str(out)])
+    assert "N_c" in capsys.readouterr().out
+    written = xr.open_zarr(out)
+    inputs = input_channels(load_json(mould_json), SIZE)
+    np.testing.assert_array_equal(written["inputs"].values, inputs)
+    expect = predict(checkpoint, inputs)
+    np.testing.assert_allclose(written["raw"].values, expect.raw, rtol=1e-6)
+    # Normalised = raw * N_p / N_c with N_c the predicted density sum (independent check).
+    raw = written["raw"].values.astype(np.float64)
+    np.testing.assert_allclose(written["normalised"].values, raw * SIZE ** 2 / raw[0].sum(),
+                               rtol=1e-4)
+    np.testing.assert_allclose(written["x"].values[:2], np.array([0.5, 1.5]) * BOX / SIZE)
+    assert list(written["field"].values) == ["P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz"]
+
+
+def test_predict_from_npy_and_png_agree(trained, tmp_path):
+    _, checkpoint = trained
+    inputs = synthetic_dataset(16, SIZE)["inputs"].values[3]
+    np.save(tmp_path / "m.npy", inputs)
+    # A picture: red = mould, green = tether, row 0 at the top (highest y).
+    rgb = np.zeros((SIZE, SIZE, 3), dtype=np.uint8)
+    rgb[..., 0], rgb[..., 1] = inputs[0][::-1] * 255, inputs[1][::-1] * 255
+    Image.fromarray(rgb).save(tmp_path / "m.png")
+    for source in ("m.npy", "m.png"):
+        out = tmp_path / f"{source}.zarr"
+        cli.main(["predict", str(tmp_path / source), "--checkpoint", str(checkpoint), "--out", str(out)])
+        np.testing.assert_array_equal(xr.open_zarr(out)["inputs"].values, inputs)
+    cli.main(["predict", str(tmp_path / "m.npy"), "--checkpoint", str(checkpoint), "--out",
+              str(tmp_path / "f.png")])
+    assert (tmp_path / "f.png").stat().st_size > 5000
+
+
+def test_predict_rejects_bad_inputs(trained, tmp_path, capsys):
+    _, checkpoint = trained
+    cases = {"wrong box": None, "3 channels": np.zeros((3, SIZE, SIZE), np.uint8),
+             "not binary": np.full((2, SIZE, SIZE), 2, np.uint8),
+             "no integer ratio": np.zeros((2, 24, 24), np.uint8)}
+    cli.main(["mould", "--seed", "7", "--scene", "tiny", "--out", str(tmp_path / "tiny.json")])
+    capsys.readouterr()
+    for name, array in cases.items():
+        path = tmp_path / "tiny.json"
+        if array is not None:
+            path = tmp_path / f"{name.replace(' ', '_')}.npy"
+            np.save(path, array)
+        code = run_main(["predict", str(path), "--checkpoint", str(checkpoint), "--out",
+                         str(tmp_path / "f.zarr")])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1, name
+        assert str(path.name) in err or "box" in err, (name, err)
+    np.save(tmp_path / "ok.npy", np.zeros((2, SIZE, SIZE), np.uint8))
+    code = run_main(["predict", str(tmp_path / "ok.npy"), "--checkpoint", str(checkpoint),
+                     "--out", str(tmp_path / "f.txt")])
+    assert code == 2 and "f.txt" in capsys.readouterr().err and not (tmp_path / "f.txt").exists()

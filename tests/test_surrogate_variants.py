@@ -1,0 +1,106 @@
+"""Variant settings -> TrainConfig, the config's `surrogate:` section, and the workflow's
+train/evaluate entry points on a real-format store."""
+
+import pandas as pd
+import pytest
+
+from condor.config import load_config, scene_of
+from condor.surrogate.checkpoint import load_checkpoint
+from condor.surrogate.evaluate import combine_summaries
+from condor.surrogate.models import UNetConfig
+from condor.surrogate.synthetic import synthetic_dataset
+from condor.surrogate.variants import (evaluate_variant, evaluate_workflow_baselines, train_config,
+                                       train_variant, working_checkpoint, workflow_variants)
+from test_cli_surrogate import write_store
+
+REPO_CONFIGS = ("config/config.yaml", "config/tiny.yaml", "config/paper.yaml")
+
+
+def test_train_config_maps_flat_settings():
+    cfg = train_config({"model": "unet_gan", "base": 16, "depth": 3, "epochs": 7, "lr": 1e-3,
+                        "lam": 50, "batch_size": None}, 64)
+    assert cfg.unet == UNetConfig(size=64, base=16, depth=3, max_width=256)
+    assert (cfg.model, cfg.epochs, cfg.lr, cfg.lam, cfg.batch_size) == ("unet_gan", 7, 1e-3, 50, 1)
+    assert train_config({"model": "unet_l1"}, 32).unet == UNetConfig.for_size(32)
+    assert train_config({"model": "pix2pix"}, 64).networks(64)[0] == UNetConfig.paper()
+
+
+@pytest.mark.parametrize("settings, message", [
+    ({"model": "unet"}, "'unet'"),
+    ({"model": "unet_l1", "bse": 3}, "bse"),
+    ({"model": "pix2pix", "base": 16}, "base"),
+    ({"model": "unet_l1", "epochs": -1}, "epochs"),
+    ({"model": "unet_l1", "depth": 7}, "divisible"),
+])
+def test_train_config_rejects_bad_settings(settings, message):
+    with pytest.raises(ValueError, match=message):
+        train_config(settings, 64)
+
+
+def test_workflow_variants_and_repository_configs():
+    for path in REPO_CONFIGS:
+        config = load_config(path)
+        variants = workflow_variants(config)
+        assert variants, path
+        for name, settings in variants.items():
+            train_config(settings, scene_of(config).pixels)
+    config = {"surrogate": {"variants": ["a", "b"], "models": {"a": {"model": "unet_l1"}}}}
+    with pytest.raises(ValueError, match="'b'"):
+        workflow_variants(config)
+    with pytest.raises(ValueError, match="baselines"):
+        workflow_variants({"surrogate": {"variants": ["baselines"], "models": {}}})
+
+
+def test_schema_rejects_unknown_variant_key(tmp_path):
+    text = ("scene: tiny\nseed: 1\nn_moulds: 4\nsurrogate:\n  models:\n"
+            "    u: {model: unet_l1, epoch: 3}\n")
+    (tmp_path / "c.yaml").write_text(text)
+    with pytest.raises(ValueError, match="epoch"):
+        load_config(tmp_path / "c.yaml")
+
+
+@pytest.fixture(scope="module")
+def store(tmp_path_factory):
+    path = tmp_path_factory.mktemp("wf") / "data.zarr"
+    write_store(path, synthetic_dataset(16, 32, splits=("train",) * 6 + ("val", "test")))
+    return path
+
+
+SETTINGS = {"model": "unet_l1", "base": 8, "epochs": 2, "batch_size": 4, "lr": 2e-3}
+
+
+def test_train_variant_publishes_and_resumes(store, tmp_path):
+    final = tmp_path / "models" / "v.pt"
+    final.parent.mkdir()
+    lines = []
+    history = train_variant(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log=lines.append)
+    assert len(history) == 2 and final.is_file() and working_checkpoint(final).is_file()
+    assert pd.read_csv(tmp_path / "h.csv")["epoch"].tolist() == [1, 2]
+    # More epochs resume the working checkpoint: only epoch 3 runs.
+    lines.clear()
+    train_variant(store, {**SETTINGS, "epochs": 3}, final, threads=1, log=lines.append)
+    assert [line.split()[1] for line in lines] == ["3/3"]
+    assert load_checkpoint(final)["epoch"] == 3
+    # Other settings discard the working checkpoint and start over.
+    lines.clear()
+    train_variant(store, {**SETTINGS, "base": 4}, final, threads=1, log=lines.append)
+    assert lines[0].startswith("starting over") and len(lines) == 3
+    assert load_checkpoint(final)["generator_config"]["base"] == 4
+
+
+def test_workflow_evaluation_files_and_summary(store, tmp_path):
+    checkpoint = tmp_path / "v.pt"
+    train_variant(store, SETTINGS, checkpoint, threads=1, log=lambda s: None)
+    evaluate_variant(store, checkpoint, tmp_path / "v", "v", modes=["eval", "train"])
+    evaluate_workflow_baselines(store, tmp_path / "baselines")
+    assert {p.name for p in (tmp_path / "v").iterdir()} == {
+        "summary.csv", "figures", "v_eval_mae.csv", "v_eval_correlations.csv", "v_train_mae.csv",
+        "v_train_correlations.csv"}
+    assert len(list((tmp_path / "v" / "figures").glob("v_*.png"))) == 12
+    assert len(list((tmp_path / "baselines" / "figures").glob("*.png"))) == 12
+    paths = [tmp_path / "v" / "summary.csv", tmp_path / "baselines" / "summary.csv"]
+    summary = combine_summaries(paths)
+    assert list(summary.index) == ["v_eval", "v_train", "masked_mean", "mould_blur"]
+    assert (summary["seconds_per_mould"] > 0).all()
+    with pytest.raises(ValueError, match="masked_mean"):
+        combine_summaries(paths + paths[1:])
