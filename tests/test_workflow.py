@@ -80,6 +80,8 @@ def test_end_to_end_tiny(tmp_path):
     assert set(ds["split"].values.astype(str)) <= {"train", "val", "test"}
     for figure in ("mould_gallery.png", "samples.png"):
         assert (tmp_path / "results" / "figures" / figure).stat().st_size > 5000
+    report = (tmp_path / "results" / "report.html").read_text()
+    assert report.count("data:image/png;base64,") >= 5  # figures are embedded, not linked
     # Nothing left to do: a second run schedules no job.
     assert "Nothing to be done" in run(tmp_path, *TINY).stderr
 
@@ -157,3 +159,10 @@ def test_bad_config_stops_with_named_key(tmp_path):
     assert proc.returncode != 0
     assert "solvr" in proc.stderr + proc.stdout
     assert not store_of(tmp_path).exists()
+
+
+def test_lint_is_clean():
+    proc = subprocess.run([*SNAKEMAKE, "--lint", "--snakefile", str(REPO / "Snakefile")], cwd=REPO,
+                          capture_output=True, text=True)
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    assert "Lints for" not in proc.stdout + proc.stderr, (proc.stdout + proc.stderr)[-3000:]

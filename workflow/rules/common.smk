@@ -13,11 +13,18 @@ STORE = f"{R}/dataset.zarr"
 STORE_READY = f"{STORE}/zarr.json"
 BATCHES = condor_config.batches(config)
 BATCH_IDS = [f"{b:04d}" for b in range(len(BATCHES))]
+# Software for --software-deployment-method conda (the README venv is the usual route).
+CONDA_ENV = "../envs/condor.yaml"
 FINAL_TARGETS = []  # each stage file appends the outputs `all` needs
 
 
 wildcard_constraints:
     batch=r"\d{4}",
+
+
+def evaluation_tables(method_prefix):
+    """The per-method CSV tables `condor.surrogate.evaluate` writes into one folder."""
+    return [f"{method_prefix}_{table}.csv" for table in ("mae", "correlations")]
 
 
 def batch_ids(wildcards):

@@ -2,6 +2,8 @@
 
 
 rule fields:
+    conda:
+        CONDA_ENV
     input:
         sims=f"{R}/sims/batch_{{batch}}",
         moulds=f"{R}/moulds/batch_{{batch}}.json",
@@ -18,6 +20,8 @@ rule fields:
 
 
 rule dataset:
+    conda:
+        CONDA_ENV
     input:
         expand(f"{R}/fields/batch_{{batch}}.json", batch=BATCH_IDS),
     output:
@@ -29,6 +33,8 @@ rule dataset:
 
 
 rule sample_figure:
+    conda:
+        CONDA_ENV
     input:
         f"{R}/dataset_summary.csv",
     output:

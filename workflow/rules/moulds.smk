@@ -2,6 +2,8 @@
 
 
 rule init_store:
+    conda:
+        CONDA_ENV
     output:
         STORE_READY,
     log:
@@ -11,6 +13,8 @@ rule init_store:
 
 
 rule moulds:
+    conda:
+        CONDA_ENV
     input:
         STORE_READY,
     output:
@@ -27,6 +31,8 @@ rule moulds:
 
 
 rule gallery:
+    conda:
+        CONDA_ENV
     input:
         expand(f"{R}/moulds/batch_{{batch}}.json", batch=BATCH_IDS),
     output:

@@ -23,6 +23,8 @@ wildcard_constraints:
 
 
 rule tradeoff_mould:
+    conda:
+        CONDA_ENV
     input:
         lambda wildcards: MOULD_BATCH[int(wildcards.mould)],
     output:
@@ -41,6 +43,8 @@ rule tradeoff_mould:
 
 
 rule tradeoff:
+    conda:
+        CONDA_ENV
     input:
         expand(f"{REPORT_DIR}/tradeoff/mould_{{mould}}.csv", mould=REPORT_MOULDS),
     output:
@@ -58,6 +62,8 @@ rule tradeoff:
 
 
 rule convergence:
+    conda:
+        CONDA_ENV
     input:
         MOULD_BATCH[REPORT_MOULDS[0]],
     output:
@@ -82,6 +88,8 @@ rule convergence:
 
 
 rule stability:
+    conda:
+        CONDA_ENV
     input:
         STORE_READY,  # the numba cache is warm before any simulation job
     output:
@@ -103,6 +111,8 @@ rule stability:
 
 
 rule cost_accuracy:
+    conda:
+        CONDA_ENV
     input:
         tables=expand(f"{REPORT_DIR}/tradeoff/mould_{{mould}}.csv", mould=REPORT_MOULDS),
         references=expand(
@@ -132,6 +142,8 @@ rule cost_accuracy:
 
 
 rule report:
+    conda:
+        CONDA_ENV
     input:
         gallery=f"{R}/figures/mould_gallery.png",
         regimes=f"{R}/figures/mould_regimes.csv",

@@ -2,6 +2,8 @@
 
 
 rule simulate:
+    conda:
+        CONDA_ENV
     input:
         f"{R}/moulds/batch_{{batch}}.json",
     output:

@@ -12,12 +12,9 @@ wildcard_constraints:
     variant="|".join(VARIANTS) or "(?!)",
 
 
-def evaluation_tables(method_prefix):
-    """The per-method CSV tables `condor.surrogate.evaluate` writes into one folder."""
-    return [f"{method_prefix}_{table}.csv" for table in ("mae", "correlations")]
-
-
 rule train:
+    conda:
+        CONDA_ENV
     input:
         rules.dataset.output,
     output:
@@ -38,6 +35,8 @@ rule train:
 
 
 rule evaluate:
+    conda:
+        CONDA_ENV
     input:
         checkpoint=f"{R}/models/{{variant}}.pt",
         dataset=rules.dataset.output,
@@ -67,6 +66,8 @@ rule evaluate:
 
 
 rule evaluate_baselines:
+    conda:
+        CONDA_ENV
     input:
         rules.dataset.output,
     output:
@@ -90,6 +91,8 @@ rule evaluate_baselines:
 
 
 rule surrogate_summary:
+    conda:
+        CONDA_ENV
     input:
         expand(f"{EVALUATION}/{{variant}}/summary.csv", variant=list(VARIANTS)),
         f"{EVALUATION}/baselines/summary.csv",
