@@ -95,6 +95,73 @@ def resample_fields(fields: np.ndarray, size: int) -> np.ndarray:
     return _block(fields, f).sum(axis=(-3, -1))
 
 
+# --- symmetries --------------------------------------------------------------------------
+# The model and the square, centred box are symmetric under D4 (mirrors in x and y, the x<->y
+# transpose) times the z-reflection of the slab: 16 transforms, numbered 0..15 by the bits
+# TRANSPOSE, MIRROR_X, MIRROR_Y, FLIP_Z (0 = identity). Transform k applies its generators in
+# that order; each generator is an involution, so the inverse applies them in reverse.
+TRANSPOSE, MIRROR_X, MIRROR_Y, FLIP_Z = 1, 2, 4, 8
+N_SYMMETRIES = 16
+# Fields whose sign flips under each reflection (a tensor component s_a s_b is odd under the
+# reflection of axis a when exactly one of a, b is that axis).
+_ODD = {MIRROR_X: ("SxSy", "SxSz"), MIRROR_Y: ("SxSy", "SySz"), FLIP_Z: ("SxSz", "SySz")}
+# Field order after x <-> y: Sx2 <-> Sy2, SxSz <-> SySz.
+_TRANSPOSED = ("P", "T", "Sy2", "Sx2", "Sz2", "SxSy", "SySz", "SxSz")
+ODD_FIELDS = ("SxSy", "SxSz", "SySz")  # odd under some reflection: scaling must be symmetric
+PAIRED_FIELDS = (("Sx2", "Sy2"), ("SxSz", "SySz"))  # swapped by the transpose: one range
+
+
+def _field_signs(generator: int) -> np.ndarray:
+    return np.array([-1.0 if f in _ODD[generator] else 1.0 for f in FIELD_NAMES])
+
+
+def _check_symmetry(k: int) -> int:
+    if not 0 <= int(k) < N_SYMMETRIES or int(k) != k:
+        raise ValueError(f"symmetry index {k!r} is not an integer in [0, {N_SYMMETRIES})")
+    return int(k)
+
+
+def _generators(k: int) -> list[int]:
+    return [g for g in (TRANSPOSE, MIRROR_X, MIRROR_Y, FLIP_Z) if k & g]
+
+
+def _apply_generator(g: int, inputs, fields):
+    """One generator on inputs (..., 2, H, W) (or None) and fields (..., 8, H, W) (or None),
+    numpy or torch; fields in physical units or under a symmetric scaling."""
+    is_torch = torch.is_tensor(fields if fields is not None else inputs)
+
+    def flip(a, axis):
+        return None if a is None else (torch.flip(a, (axis,)) if is_torch else np.flip(a, axis))
+
+    def swap(a):
+        return None if a is None else a.transpose(-1, -2) if is_torch else np.swapaxes(a, -1, -2)
+
+    if g == TRANSPOSE:
+        inputs, fields = swap(inputs), swap(fields)
+        if fields is not None:
+            order = [FIELD_NAMES.index(f) for f in _TRANSPOSED]
+            fields = fields[..., order, :, :]
+    elif g in (MIRROR_X, MIRROR_Y):
+        axis = -1 if g == MIRROR_X else -2
+        inputs, fields = flip(inputs, axis), flip(fields, axis)
+    if fields is not None and g in _ODD:
+        signs = _field_signs(g).reshape(-1, 1, 1)
+        fields = fields * (torch.as_tensor(signs, dtype=fields.dtype, device=fields.device)
+                           if is_torch else signs.astype(fields.dtype))
+    return inputs, fields
+
+
+def apply_symmetry(k: int, inputs=None, fields=None, inverse: bool = False):
+    """Transform k (0..15, see TRANSPOSE/MIRROR_X/MIRROR_Y/FLIP_Z) of a sample: inputs
+    (..., 2, H, W) and/or fields (..., 8, H, W), numpy or torch (either may be None). Fields
+    must be physical (unscaled) or scaled by a `FieldScaling.symmetrised()` scaling. Returns
+    (inputs, fields); `inverse` applies the inverse transform."""
+    gens = _generators(_check_symmetry(k))
+    for g in (reversed(gens) if inverse else gens):
+        inputs, fields = _apply_generator(g, inputs, fields)
+    return inputs, fields
+
+
 # --- scaling -------------------------------------------------------------------------------
 
 @dataclass
@@ -130,6 +197,20 @@ class FieldScaling:
 
     def unscale(self, scaled):
         return (scaled + 1) * self._shape(scaled, self._span() / 2.0) + self._shape(scaled, self.lo)
+
+    def symmetrised(self) -> "FieldScaling":
+        """The smallest scaling containing this one that commutes with every symmetry
+        (`apply_symmetry`): odd fields get [-m, m] with m = max(|lo|, |hi|), and the fields
+        swapped by the transpose share the union of their ranges."""
+        lo, hi = self.lo.copy(), self.hi.copy()
+        idx = {f: i for i, f in enumerate(self.field_names)}
+        for a, b in PAIRED_FIELDS:
+            lo[[idx[a], idx[b]]] = min(lo[idx[a]], lo[idx[b]])
+            hi[[idx[a], idx[b]]] = max(hi[idx[a]], hi[idx[b]])
+        for f in ODD_FIELDS:
+            m = max(abs(lo[idx[f]]), abs(hi[idx[f]]))
+            lo[idx[f]], hi[idx[f]] = -m, m
+        return FieldScaling(lo, hi, self.field_names)
 
     def to_dict(self) -> dict:
         return {"lo": self.lo.tolist(), "hi": self.hi.tolist(), "field_names": list(self.field_names)}

@@ -9,7 +9,8 @@ import numpy as np
 import torch
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
-from .data import FIELD_NAMES, FieldScaling, resample_fields, resample_masks
+from .data import (FIELD_NAMES, N_SYMMETRIES, FieldScaling, apply_symmetry, resample_fields,
+                   resample_masks)
 from .models import UNetGenerator, prediction_mode
 
 
@@ -20,12 +21,26 @@ def default_device(device=None) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
+def _symmetrised(model, scaling: FieldScaling, x: torch.Tensor) -> np.ndarray:
+    """Mean over the 16 symmetries g of g^-1 G(g x), physical units (float64). The z-flip
+    leaves the inputs unchanged, so each of the 8 planar transforms runs once and its z-flipped
+    twin is its output with SxSz, SySz negated: the mean of those two sets them to zero."""
+    total = 0.0
+    for k in range(N_SYMMETRIES // 2):  # the planar ones (FLIP_Z is the highest bit)
+        gx, _ = apply_symmetry(k, inputs=x)
+        y = scaling.unscale(model(gx.contiguous()).double().cpu().numpy())
+        for z in (0, N_SYMMETRIES // 2):
+            total = total + apply_symmetry(k + z, fields=y, inverse=True)[1]
+    return total / N_SYMMETRIES
+
+
 def run_generator(model: UNetGenerator, scaling: FieldScaling, inputs: np.ndarray, mode: str = "eval",
-                  batch_size: int = 16, device=None) -> np.ndarray:
+                  batch_size: int = 16, device=None, symmetrise: bool = False) -> np.ndarray:
     """Inputs (S, 2, H, W) 0/1 at the native resolution -> physical fields (S, 8, H, W)
     float32 at the native resolution. The model runs at its own resolution (inputs resampled
     nearest, outputs resampled conserving sums). Modes other than "eval" depend on the batch,
-    so they run one sample at a time as the paper did."""
+    so they run one sample at a time as the paper did. `symmetrise`: the mean over the 16
+    symmetries of the transformed-back predictions (8 model runs: see _symmetrised)."""
     device = default_device(device) if device is None else torch.device(device)
     native = inputs.shape[-1]
     size = model.cfg.size
@@ -35,8 +50,10 @@ def run_generator(model: UNetGenerator, scaling: FieldScaling, inputs: np.ndarra
     with prediction_mode(model, mode), torch.no_grad():
         for start in range(0, inputs.shape[0], batch_size):
             x = resample_masks(np.asarray(inputs[start:start + batch_size], dtype=np.float32), size)
-            y = model(torch.from_numpy(np.ascontiguousarray(x)).to(device)).double().cpu().numpy()
-            out[start:start + batch_size] = resample_fields(scaling.unscale(y), native)
+            x = torch.from_numpy(np.ascontiguousarray(x)).to(device)
+            y = _symmetrised(model, scaling, x) if symmetrise else \
+                scaling.unscale(model(x).double().cpu().numpy())
+            out[start:start + batch_size] = resample_fields(y, native)
     return out
 
 
@@ -61,7 +78,8 @@ class Prediction:
 class Predictor:
     """A loaded checkpoint, for repeated predictions."""
 
-    def __init__(self, checkpoint_path, device=None, mode: str | None = None):
+    def __init__(self, checkpoint_path, device=None, mode: str | None = None,
+                 symmetrise: bool | None = None):
         self.path = str(checkpoint_path)
         self.device = default_device(device)
         state = load_checkpoint(checkpoint_path)
@@ -69,6 +87,8 @@ class Predictor:
         self.scaling = scaling_from_checkpoint(state)
         self.native = int(state["data"]["native_size"])
         self.mode = mode or state["config"].get("prediction_mode", "eval")
+        self.symmetrise = state["config"].get("symmetrise", False) if symmetrise is None \
+            else bool(symmetrise)
         self.state = state
 
     @property
@@ -90,18 +110,20 @@ class Predictor:
         if batch.shape[-2:] != (self.native, self.native):
             raise ValueError(f"inputs are {batch.shape[-2]}x{batch.shape[-1]} px but checkpoint "
                              f"{self.path!r} was trained on {self.native}x{self.native} px")
-        raw = run_generator(self.model, self.scaling, batch, self.mode, batch_size, self.device)
+        raw = run_generator(self.model, self.scaling, batch, self.mode, batch_size, self.device,
+                            self.symmetrise)
         normalised, n_cells = normalise(raw)
         if single:
             return Prediction(raw[0], normalised[0], float(n_cells[0]))
         return Prediction(raw, normalised, n_cells)
 
 
-def predict(checkpoint_path, inputs, mode: str | None = None, device=None) -> Prediction:
+def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
+            symmetrise: bool | None = None) -> Prediction:
     """Predict fields for mould inputs (2, H, W) or (S, 2, H, W) (channels mould, tether; 0/1;
     native resolution of the training data). `mode` (a models.PREDICTION_MODES entry)
-    defaults to the checkpoint's training config."""
-    return Predictor(checkpoint_path, device=device, mode=mode)(inputs)
+    and `symmetrise` (test-time symmetrisation) default to the checkpoint's training config."""
+    return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise)(inputs)
 
 
 def plot_prediction(inputs: np.ndarray, fields: np.ndarray, path=None, title: str = "",

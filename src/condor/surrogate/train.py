@@ -21,15 +21,16 @@ import torch
 from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
-from .data import (CHANNEL_NAMES, FIELD_NAMES, SampleSource, check_dataset, compute_scaling,
-                   dataset_pixel_size, usable_samples)
+from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, SampleSource, apply_symmetry,
+                   check_dataset, compute_scaling, dataset_pixel_size, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss, l1_loss)
 from .predict import default_device, run_generator
 
 MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
 # Config keys that may change between a run and its resumption.
-RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode"}
+RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode",
+                  "symmetrise"}
 
 
 @dataclass
@@ -43,6 +44,10 @@ class TrainConfig:
     prediction_mode: BatchNorm/dropout mode for validation and default for prediction.
     adversarial_target: the generator's adversarial target (1 standard; the paper writes 0).
     num_threads: torch CPU threads during training (None leaves the current setting).
+    augment: train on a random one of the 16 exact symmetries (data.apply_symmetry) of each
+    sample, drawn from (seed, epoch, sample); the field scaling is then symmetrised.
+    symmetrise: predict (validation, and by default `predict`/`evaluate`) as the mean over the
+    16 symmetries of the prediction, each transformed back (test-time symmetrisation).
     """
 
     model: str = "pix2pix"
@@ -60,6 +65,8 @@ class TrainConfig:
     prediction_mode: str = "eval"
     num_threads: int | None = 1
     deterministic: bool = True
+    augment: bool = False
+    symmetrise: bool = False
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -115,6 +122,20 @@ def _epoch_seed(seed: int, epoch: int) -> int:
     return int(np.random.default_rng([seed, epoch, 7]).integers(2 ** 62))
 
 
+def augmentation_choices(seed: int, epoch: int, n_samples: int) -> np.ndarray:
+    """Symmetry index (0..15) for each training sample (position in the training split) in
+    `epoch`: a pure function of (seed, epoch), so a resumed run draws the same ones."""
+    return np.random.default_rng([seed, epoch, 13]).integers(N_SYMMETRIES, size=n_samples)
+
+
+def augment_batch(x: torch.Tensor, y: torch.Tensor, choices) -> tuple[torch.Tensor, torch.Tensor]:
+    """Apply symmetry choices[i] to sample i of a batch (inputs x, fields y scaled by a
+    symmetrised FieldScaling)."""
+    pairs = [apply_symmetry(int(k), x[i], y[i]) for i, k in enumerate(choices)]
+    return (torch.stack([p[0] for p in pairs]).contiguous(),
+            torch.stack([p[1] for p in pairs]).contiguous())
+
+
 def _data_signature(ds, train_idx: np.ndarray) -> dict:
     ids = ds["sample"].values[train_idx] if "sample" in ds.coords else train_idx
     digest = hashlib.sha1(np.asarray(ids).astype(str).tobytes()).hexdigest()[:16]
@@ -168,13 +189,14 @@ def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig) -> dict:
             "d_loss": d_total.item()}
 
 
-def validation_mae(G, scaling, source: SampleSource, mode: str, device) -> float:
+def validation_mae(G, scaling, source: SampleSource, mode: str, device,
+                   symmetrise: bool = False) -> float:
     """Mean absolute error over pixels, fields and samples, physical units, native grid."""
     if len(source) == 0:
         return float("nan")
     items = np.arange(len(source))
     inputs = np.asarray(source.ds["inputs"].isel(sample=source.indices).values, dtype=np.float32)
-    pred = run_generator(G, scaling, inputs, mode, device=device)
+    pred = run_generator(G, scaling, inputs, mode, device=device, symmetrise=symmetrise)
     return float(np.abs(pred - source.native_fields(items)).mean())
 
 
@@ -218,27 +240,33 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
             scaling, history, start = scaling_from_checkpoint(state), list(state["history"]), state["epoch"]
         else:
             scaling, history, start = compute_scaling(dataset, train_idx, G.cfg.size), [], 0
+            if cfg.augment:  # sign flips and swaps must commute with the scaling
+                scaling = scaling.symmetrised()
         train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size)
         val_src = SampleSource(dataset, val_idx, None, native, preload=False)
         for epoch in range(start, cfg.epochs):
             t0 = time.perf_counter()
             torch.manual_seed(_epoch_seed(cfg.seed, epoch))
             order = np.random.default_rng([cfg.seed, epoch]).permutation(len(train_src))
+            choices = augmentation_choices(cfg.seed, epoch, len(train_src))
             G.train()
             if D is not None:
                 D.train()
             sums: dict[str, float] = {}
             n_batches = 0
             for start_item in range(0, len(order), cfg.batch_size):
-                x, y = train_src.batch(order[start_item:start_item + cfg.batch_size])
+                items = order[start_item:start_item + cfg.batch_size]
+                x, y = train_src.batch(items)
+                if cfg.augment:
+                    x, y = augment_batch(x, y, choices[items])
                 for k, v in _train_step(G, D, opt_g, opt_d, x.to(device), y.to(device), cfg).items():
                     sums[k] = sums.get(k, 0.0) + v
                 n_batches += 1
             record = {"epoch": epoch + 1, **{k: v / n_batches for k, v in sums.items()}}
             last = epoch + 1 == cfg.epochs
             validate = len(val_src) > 0 and ((epoch + 1) % cfg.val_every == 0 or last)
-            record["val_mae"] = validation_mae(G, scaling, val_src, cfg.prediction_mode, device) \
-                if validate else None
+            record["val_mae"] = validation_mae(G, scaling, val_src, cfg.prediction_mode, device,
+                                               cfg.symmetrise) if validate else None
             record["seconds"] = time.perf_counter() - t0
             history.append(record)
             save_checkpoint({

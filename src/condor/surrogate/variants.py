@@ -19,7 +19,7 @@ from .train import MODEL_KINDS, TrainConfig, train
 
 UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout")
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "lam", "adversarial_target", "seed", "val_every",
-              "max_val_samples", "prediction_mode", "num_threads")
+              "max_val_samples", "prediction_mode", "num_threads", "augment", "symmetrise")
 SETTING_KEYS = ("model",) + UNET_KEYS + TRAIN_KEYS
 VARIANT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")  # used in file names and wildcards
 
