@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import warnings
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -94,14 +95,15 @@ def assign_splits(n_samples: int, n_test: int, val_fraction: float, seed: int) -
     return tuple(labels)
 
 
+@contextmanager
 def _quiet():
-    # zarr warns that variable-length strings are not yet in the v3 spec; xarray reads them.
-    ctx = warnings.catch_warnings()
-    ctx.__enter__()
-    warnings.filterwarnings("ignore", message=".*string.*", category=UserWarning)
-    warnings.filterwarnings("ignore", category=FutureWarning, module="zarr")
-    warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
-    return ctx
+    """Silence zarr's notices that consolidated metadata and string dtypes are not yet in the
+    v3 spec: xarray reads both, and users should not see them on every write."""
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*string.*", category=UserWarning)
+        warnings.filterwarnings("ignore", category=FutureWarning, module="zarr")
+        warnings.filterwarnings("ignore", message=".*[Cc]onsolidated metadata.*")
+        yield
 
 
 def create_store(path: str | Path, spec: StoreSpec) -> bool:
@@ -120,8 +122,7 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
         import shutil
 
         shutil.rmtree(tmp)  # debris of an interrupted creation: holds no samples
-    ctx = _quiet()
-    try:
+    with _quiet():
         group = zarr.open_group(tmp, mode="w-", zarr_format=3)
         group.attrs.update(
             {
@@ -153,8 +154,6 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
             )
         group["split"][:] = np.array(spec.split)
         zarr.consolidate_metadata(tmp)
-    finally:
-        ctx.__exit__(None, None, None)
     tmp.rename(path)  # the store appears whole or not at all
     return True
 
@@ -172,8 +171,7 @@ def open_group(path: str | Path, mode: str = "r") -> zarr.Group:
     path = Path(path)
     if not path.exists():
         raise StoreError(f"no dataset store at {path} (run the workflow to build it)")
-    ctx = _quiet()
-    try:
+    with _quiet():
         try:
             group = zarr.open_group(path, mode=mode)
         except Exception as err:  # zarr raises several types for unreadable metadata
@@ -193,8 +191,6 @@ def open_group(path: str | Path, mode: str = "r") -> zarr.Group:
         missing = sorted(name for name in expected if not (path / name / "zarr.json").is_file())
         if missing:
             raise StoreError(f"{path} is truncated: missing array(s) {missing}")
-    finally:
-        ctx.__exit__(None, None, None)
     return group
 
 
@@ -218,13 +214,11 @@ def open_dataset(path: str | Path):
     import xarray as xr
 
     open_group(path)
-    ctx = _quiet()
-    try:
-        return xr.open_zarr(path, consolidated=True)
-    except Exception as err:
-        raise StoreError(f"{path}: xarray could not open the store: {err}") from err
-    finally:
-        ctx.__exit__(None, None, None)
+    with _quiet():
+        try:
+            return xr.open_zarr(path, consolidated=True)
+        except Exception as err:
+            raise StoreError(f"{path}: xarray could not open the store: {err}") from err
 
 
 def _sample_index(group: zarr.Group, sample: int) -> int:
@@ -241,14 +235,11 @@ def write_inputs(path: str | Path, sample: int, inputs: np.ndarray, mould_meta: 
     pixels = group.attrs["pixels"]
     if inputs.shape != (2, pixels, pixels):
         raise ValueError(f"inputs for sample {sample} have shape {inputs.shape}, store needs (2, {pixels}, {pixels})")
-    ctx = _quiet()
-    try:
+    with _quiet():
         group["inputs"][i] = inputs.astype("uint8")
         for name in MOULD_VARIABLES:
             group[name][i] = mould_meta[name]
         group["inputs_ready"][i] = 1
-    finally:
-        ctx.__exit__(None, None, None)
 
 
 def write_sample(path: str | Path, sample: int, fields: np.ndarray | None, sim_meta: dict,
@@ -260,8 +251,7 @@ def write_sample(path: str | Path, sample: int, fields: np.ndarray | None, sim_m
         raise ValueError(f"sample {sample}: status must be 'ok' or a failure reason, got ''")
     group = open_group(path, mode="r+")
     i = _sample_index(group, sample)
-    ctx = _quiet()
-    try:
+    with _quiet():
         if fields is not None:
             shape = group["fields"].shape[1:]
             if fields.shape != shape:
@@ -272,8 +262,6 @@ def write_sample(path: str | Path, sample: int, fields: np.ndarray | None, sim_m
         for name in SIMULATION_VARIABLES:
             group[name][i] = sim_meta[name]
         group["status"][i] = status[:STATUS_WIDTH]
-    finally:
-        ctx.__exit__(None, None, None)
 
 
 def check_store(path: str | Path, deep: bool = False):
@@ -285,8 +273,7 @@ def check_store(path: str | Path, deep: bool = False):
     group = open_group(path)
     n = group.attrs["n_samples"]
     rows = []
-    ctx = _quiet()
-    try:
+    with _quiet():
         ready, status, split = (_read_each(group[k], n) for k in ("inputs_ready", "status", "split"))
         for i in range(n):
             if ready[i] is None or status[i] is None:
@@ -301,8 +288,6 @@ def check_store(path: str | Path, deep: bool = False):
                 state = "failed"
             rows.append({"sample": i, "split": split[i], "inputs_ready": ready[i],
                          "status": status[i], "state": state})
-    finally:
-        ctx.__exit__(None, None, None)
     return pd.DataFrame(rows)
 
 
