@@ -14,6 +14,7 @@ from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, box as shapely_box
 
 from condor import moulds as M
+from condor import plots
 
 BOX = 62.5
 N_MOULDS = 2000
@@ -487,5 +488,5 @@ def test_regime_table(moulds):
 
 def test_gallery_writes_png(tmp_path, moulds):
     path = tmp_path / "gallery.png"
-    M.gallery(moulds[:8], path, ncols=4)
+    plots.mould_gallery(moulds[:8], path, ncols=4)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
