@@ -185,13 +185,15 @@ SQUARE = [[0, 0], [10, 0], [10, 10], [0, 10]]
     (SQUARE, [[9.5, 5, 1]], None, r"tethers\[0\] .* is crossing the outline"),
     (SQUARE, [[4, 5, 1], [5.5, 5, 1]], None, r"tethers\[0\] and tethers\[1\] overlap"),
     (SQUARE, [[5, 5, 0]], None, r"tethers\[0\] has radius 0"),
-    ([[0, 0], [10, 10], [10, 0], [0, 10]], [], None, r"the outline is self-intersecting at \(5, 5\) l0"),
+    ([[0, 0], [10, 10], [10, 0], [0, 10]], [], None,
+     r"the outline is self-intersecting at \(5, 5\) l0"),
     ([[0, 0], [10, 0], [10, 0.9], [0, 0.9]], [], None, "narrower than a cell"),
     ([[0, 0], [5, 0], [5, 4.6], [6, 4.6], [6, 0], [11, 0], [11, 10], [6, 10], [6, 5.4],
       [5, 5.4], [5, 10], [0, 10]], [], None, "neck narrower than a cell"),  # 0.8 l0 neck
     ([[0, 0], [2, 0], [2, 2], [0, 2]], [[1, 1, 0.95]], None, "no room for a mobile cell"),
     (SQUARE, [], [[[8, 8], [12, 8], [12, 12], [8, 12]]], r"holes\[0\] is not inside"),
-    (SQUARE, [[5, 5, 1]], [[[4, 4], [6, 4], [6, 6], [4, 6]]], r"tethers\[0\] .* outside the outline"),
+    (SQUARE, [[5, 5, 1]], [[[4, 4], [6, 4], [6, 6], [4, 6]]],
+     r"tethers\[0\] .* outside the outline"),
     ([[0, 0], [10, 0]], [], None, "at least 3 points"),
 ])
 def test_refusals_name_the_reason(tmp_path, outline, tethers, holes, message):
@@ -204,7 +206,7 @@ def test_refusals_name_the_reason(tmp_path, outline, tethers, holes, message):
 
 def test_too_large_in_mm_says_both_units(tmp_path):
     path = _outline(tmp_path / "big.json", [[0, 0], [1, 0], [1, 0.5], [0, 0.5]], units="mm")
-    with pytest.raises(InvalidMouldError, match=r"50 l0 \(1 mm\) wide .*15.62 l0 \(0.3125 mm\)"):
+    with pytest.raises(InvalidMouldError, match=r"50 l0 = 1 mm wide .*15.62 l0 = 0.3125 mm"):
         D.load_mould(path, TINY, l0_um=20.0)
 
 
@@ -474,3 +476,53 @@ def test_placed_user_moulds_build_a_lattice(tmp_path):
         lattice = build_lattice(mould.polygon, mould.tethers, TINY.depth)
         assert (~lattice.fixed).any()
         assert mould.polygon.contains(Point(TINY.box / 2, TINY.box / 2)) or k == 2
+
+
+def test_dxf_blocks_are_expanded_and_hidden_layers_ignored(tmp_path):
+    """A CAD file as drawn by hand: the tether is a block inserted twice, a construction
+    rectangle sits on a layer that is off, and a hatch fills the outline."""
+    doc = ezdxf.new(units=4)
+    post = doc.blocks.new("POST")
+    post.add_circle((0, 0), 0.01)
+    doc.layers.add("CONSTRUCTION").off()
+    msp = doc.modelspace()
+    outline = [(0, 0), (0.2, 0), (0.2, 0.1), (0, 0.1)]
+    msp.add_lwpolyline(outline, close=True)
+    msp.add_hatch().paths.add_polyline_path(outline, is_closed=True)
+    msp.add_lwpolyline([(-1, -1), (1, -1), (1, 1), (-1, 1)], close=True,
+                       dxfattribs={"layer": "CONSTRUCTION"})
+    msp.add_blockref("POST", (0.05, 0.05))
+    msp.add_blockref("POST", (0.15, 0.05))
+    doc.saveas(tmp_path / "cad.dxf")
+    mould = D.load_mould(tmp_path / "cad.dxf", TINY, l0_um=20.0)  # 10 x 5 l0, r = 0.5 l0
+    assert mould.polygon.area == pytest.approx(50.0, rel=1e-9)
+    np.testing.assert_allclose(np.sort(mould.tethers[:, 0]) - mould.polygon.bounds[0],
+                               [2.5, 7.5], atol=1e-9)
+    np.testing.assert_allclose(mould.tethers[:, 2], 0.5, rtol=1e-9)
+
+
+def test_an_inkscape_style_svg(tmp_path):
+    """Namespaced editor attributes, a layer group with a transform, tethers as <use> of a
+    circle in <defs>, a Bezier edge: 80 x 60 mm page, outline 50 mm wide."""
+    svg = """<?xml version="1.0" encoding="UTF-8" standalone="no"?>
+<svg width="80mm" height="60mm" viewBox="0 0 80 60" version="1.1"
+   xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape"
+   xmlns:sodipodi="http://sodipodi.sourceforge.net/DTD/sodipodi-0.dtd"
+   xmlns:xlink="http://www.w3.org/1999/xlink" xmlns="http://www.w3.org/2000/svg">
+  <sodipodi:namedview id="nv" inkscape:document-units="mm"/>
+  <defs><circle id="post" r="2" cx="0" cy="0"/></defs>
+  <g inkscape:label="Layer 1" inkscape:groupmode="layer" transform="translate(10,5)">
+    <path id="outline" d="m 0,0 h 50 v 40 c -10,10 -40,10 -50,0 z"/>
+    <use xlink:href="#post" transform="translate(15,20)"/>
+    <use xlink:href="#post" x="35" y="20"/>
+    <text x="0" y="55"><tspan>note</tspan></text>
+  </g>
+</svg>"""
+    mould = D.load_mould(_write(tmp_path / "ink.svg", svg), TINY, l0_um=4000.0)  # 4 mm = 1 l0
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    assert xmax - xmin == pytest.approx(12.5)  # 50 mm
+    # the Bezier bottom edge dips 7.5 mm below the 40 mm sides
+    assert ymax - ymin == pytest.approx(47.5 / 4, abs=D.FLATTEN_TOLERANCE_L0)
+    assert sorted(mould.tethers[:, 0] - xmin) == pytest.approx([15 / 4, 35 / 4])
+    np.testing.assert_allclose(mould.tethers[:, 1], ymax - 20 / 4)  # 20 mm below the top
+    np.testing.assert_allclose(mould.tethers[:, 2], 0.5)

@@ -38,7 +38,7 @@ from shapely import affinity
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
-from condor.moulds import InvalidMouldError, Mould, validate_mould
+from condor.moulds import InvalidMouldError, Mould, load_json, validate_mould
 from condor.scenes import Scene
 
 UNITS = ("l0", "mm", "um")  # units a drawing may be in (um is read as mm / 1000)
@@ -47,13 +47,14 @@ SVG_MM_PER_PX = 25.4 / 96  # CSS: 96 px per inch
 DXF_UNITS_PROPERTY = "condor_units"  # DXF custom header property naming a drawing's units
 
 # Training domain of the surrogate (generated moulds): area = scene.area_fraction of the
-# box exactly, extent <= scene.max_extent, 0 or >= 4 tethers, tether radii between these
-# fractions of the box side (min and max over 600 generated moulds: 0.0086 and 0.0511,
-# `generate_mould(1, i, box=1.0)`, i < 600; rounded outwards).
+# box exactly, extent <= scene.max_extent, 0 or >= 4 tethers, and tether radii within
+# TRAINING_TETHER_RADIUS box sides: the smallest and largest over 4,300 generated moulds
+# (generate_mould(s, i, box=1.0), s = 1, 2 with i < 2000 and s = 11 with i < 300) were
+# 0.0074 and 0.0539, rounded outwards here.
 AREA_WARN = 0.10  # relative deviation of the area from the training area that warns
 AREA_REFUSE = 0.50  # ... that refuses a prediction
 TRAINING_MIN_TETHERS = 4
-TRAINING_TETHER_RADIUS = (0.008, 0.055)  # box sides
+TRAINING_TETHER_RADIUS = (0.007, 0.06)  # box sides
 
 
 class DrawingError(InvalidMouldError):
@@ -86,22 +87,13 @@ def load_mould(path, scene: Scene, l0_um: float | None = None, fit: bool = False
     cannot be read.
     """
     path = Path(path)
-    _check_l0_um(l0_um)
-    if units is not None and units not in UNITS:
-        raise DrawingError(f"units = {units!r}: choose one of {UNITS}")
-    suffix = path.suffix.lower()
-    if suffix == ".json":
+    _check_arguments(l0_um, units)
+    data = None
+    if path.suffix.lower() == ".json":
         data = _read_json(path)
         if isinstance(data, dict) and "polygon" in data:
             return _mould_json(path, scene, fit, units)
-        drawing = _outline_json(path, data, units, l0_um)
-    elif suffix == ".svg":
-        drawing = _read_svg(path, units, l0_um)
-    elif suffix == ".dxf":
-        drawing = _read_dxf(path, units, l0_um)
-    else:
-        raise DrawingError(f"{path}: unknown mould file type {suffix!r}; use .json (a mould "
-                           "or an outline), .svg or .dxf")
+    drawing = _read_drawing(path, l0_um, units, data)
     return place_mould(drawing.polygon, drawing.tethers, scene, fit=fit, l0_um=l0_um,
                        source=str(path))
 
@@ -117,19 +109,28 @@ class Drawing:
 
 
 def read_drawing(path, l0_um: float | None = None, units: str | None = None) -> Drawing:
-    """The outline and tethers of a minimal JSON, SVG or DXF file, in l0 (not placed)."""
-    path = Path(path)
-    _check_l0_um(l0_um)
-    if units is not None and units not in UNITS:
-        raise DrawingError(f"units = {units!r}: choose one of {UNITS}")
+    """The outline and tethers of a minimal JSON, SVG or DXF file, in l0 (not placed);
+    arguments and errors as load_mould's."""
+    _check_arguments(l0_um, units)
+    return _read_drawing(Path(path), l0_um, units)
+
+
+def _read_drawing(path: Path, l0_um, units, data=None) -> Drawing:
     suffix = path.suffix.lower()
     if suffix == ".json":
-        return _outline_json(path, _read_json(path), units, l0_um)
+        return _outline_json(path, _read_json(path) if data is None else data, units, l0_um)
     if suffix == ".svg":
         return _read_svg(path, units, l0_um)
     if suffix == ".dxf":
         return _read_dxf(path, units, l0_um)
-    raise DrawingError(f"{path}: unknown drawing type {suffix!r}; use .json, .svg or .dxf")
+    raise DrawingError(f"{path}: unknown mould file type {suffix!r}; use .json (a mould or "
+                       "an outline), .svg or .dxf")
+
+
+def _check_arguments(l0_um, units) -> None:
+    _check_l0_um(l0_um)
+    if units is not None and units not in UNITS:
+        raise DrawingError(f"units = {units!r}: choose one of {UNITS}")
 
 
 # --------------------------------------------------------------------------- placement
@@ -147,6 +148,9 @@ def place_mould(polygon: Polygon, tethers, scene: Scene, fit: bool = False,
     `l0_um` only adds mm to the messages."""
     tethers = np.asarray(tethers, dtype=np.float64).reshape(-1, 3)
     box = float(scene.box)
+    if not isinstance(polygon, Polygon) or polygon.is_empty or not polygon.area > 0:
+        raise InvalidMouldError(f"{source}: the outline must be a Polygon with positive area, "
+                                f"got {getattr(polygon, 'geom_type', type(polygon).__name__)}")
     if fit:
         factor = math.sqrt(scene.area_fraction * box**2 / polygon.area)
         centre = _bbox_centre(polygon)
@@ -161,8 +165,8 @@ def place_mould(polygon: Polygon, tethers, scene: Scene, fit: bool = False,
         advice = ("it is too elongated for this box" if fit else
                   "draw it smaller, check l0_um, or fit it to the training area (fit=True)")
         raise InvalidMouldError(
-            f"{source}: {how} {_length(width, l0_um)} wide and {_length(height, l0_um)} "
-            f"high, larger than the {scene.name!r} scene's box of {_length(box, l0_um)}: "
+            f"{source}: {how} {_both(width, l0_um)} wide and {_both(height, l0_um)} "
+            f"high, larger than the {scene.name!r} scene's box of {_both(box, l0_um)}: "
             f"{advice}")
     shift = np.array([box / 2, box / 2]) - _bbox_centre(polygon)
     polygon = affinity.translate(polygon, *shift)
@@ -176,16 +180,15 @@ def place_mould(polygon: Polygon, tethers, scene: Scene, fit: bool = False,
     return mould
 
 
+def _both(value_l0: float, l0_um: float | None) -> str:
+    """A length in l0 and, given l0_um, in mm."""
+    text = f"{value_l0:.4g} l0"
+    return text + f" = {value_l0 * l0_um / 1000:.4g} mm" if l0_um is not None else text
+
+
 def _bbox_centre(polygon) -> np.ndarray:
     xmin, ymin, xmax, ymax = polygon.bounds
     return np.array([0.5 * (xmin + xmax), 0.5 * (ymin + ymax)])
-
-
-def _length(value_l0: float, l0_um: float | None) -> str:
-    text = f"{value_l0:.4g} l0"
-    if l0_um is not None:
-        text += f" ({value_l0 * l0_um / 1000:.4g} mm)"
-    return text
 
 
 # --------------------------------------------------------------------------- training domain
@@ -308,8 +311,6 @@ def _read_json(path: Path):
 
 def _mould_json(path: Path, scene: Scene, fit: bool, units: str | None) -> Mould:
     """A mould in the generator's format: already in l0 and in box coordinates."""
-    from condor.moulds import load_json
-
     if units not in (None, "l0"):
         raise DrawingError(f"{path} is a mould file, always in l0; units = {units!r} "
                            "contradicts it")
@@ -778,8 +779,8 @@ def _dxf_entities(entities, hidden: set, owner: str | None = None):
     for entity in entities:
         if entity.dxf.get("layer", "0").lower() in hidden or entity.dxf.get("invisible", 0):
             continue
-        handle = entity.dxf.get("handle")
-        name = owner or f"{entity.dxftype()} (handle {handle}, layer {entity.dxf.get('layer', '0')})"
+        handle, layer = entity.dxf.get("handle"), entity.dxf.get("layer", "0")
+        name = owner or f"{entity.dxftype()} (handle {handle}, layer {layer})"
         if entity.dxftype() == "INSERT":
             yield from _dxf_entities(entity.virtual_entities(), hidden,
                                      owner or f"block {entity.dxf.name!r} ({name})")
@@ -808,12 +809,6 @@ def _drawing_scale(l0_um: float | None) -> tuple[str, float]:
     """(unit, drawing units per l0) of a written drawing: mm given l0_um, else l0."""
     _check_l0_um(l0_um)
     return ("mm", float(l0_um) / 1000.0) if l0_um is not None else ("l0", 1.0)
-
-
-def _both(value_l0: float, l0_um: float | None) -> str:
-    """A length in l0 and, given l0_um, in mm."""
-    text = f"{value_l0:.4g} l0"
-    return text + f" = {value_l0 * l0_um / 1000:.4g} mm" if l0_um is not None else text
 
 
 def _tether_rows(mould: Mould, l0_um: float | None) -> list[tuple[str, ...]]:
@@ -946,9 +941,11 @@ def _title_lines(mould: Mould, l0_um: float | None, box_drawn: bool = True) -> t
     kind = (f"{mould.symmetry}, seed {mould.seed}" if mould.is_generated else mould.symmetry)
     scale = f"l0 = {l0_um:g} um; " if l0_um is not None else ""
     unit = "mm" if l0_um is not None else "l0"
+    dashed = " (dashed)" if box_drawn else ""
+    fraction = mould.polygon.area / mould.box**2
     return (f"condor mould {mould.mould_id} ({kind}), {mould.n_tethers} tethers",
-            f"box {_both(mould.box, l0_um)}{' (dashed)' if box_drawn else ''}; area {mould.polygon.area / mould.box**2:.3g}"
-            f" of the box; {scale}drawn in {unit}")
+            f"box {_both(mould.box, l0_um)}{dashed}; area {fraction:.3g} of the box; "
+            f"{scale}drawn in {unit}")
 
 
 def write_dxf(mould: Mould, path, l0_um: float | None = None) -> None:
