@@ -10,6 +10,8 @@ configfile: "config/config.yaml"
 
 
 include: "workflow/rules/common.smk"
+include: "workflow/rules/repair.smk"
+include: "workflow/rules/lock.smk"
 include: "workflow/rules/moulds.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/fields.smk"

@@ -32,7 +32,7 @@ def write_store(path, ds, box=BOX):
                      {"seed": 0, "symmetry": "none", "order": 1, "removal": "none", "n_tethers": 1})
         write_sample(path, i, ds["fields"].values[i],
                      {"sim_seed": 0, "n_cells": int(ds["n_cells"].values[i]), "energy": 0.0,
-                      "max_force": 0.0, "solver": "synthetic", "solver_seconds": 0.0}, "ok")
+                      "max_force": 0.0, "solver": "synthetic", "solver_seconds": 0.0, "hardware": "test"}, "ok")
 
 
 @pytest.fixture(scope="module")

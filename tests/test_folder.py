@@ -81,7 +81,7 @@ def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
     replicas = config.replicas()
     meta = {"seed": 1, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     sim = {"sim_seed": 0, "n_cells": 10, "energy": 1.0, "max_force": 0.0, "solver": "hybrid",
-           "solver_seconds": 1.0}
+           "solver_seconds": 1.0, "hardware": "test"}
     for mould in range(config.n_moulds):
         write_inputs(store, mould, np.ones((2, 32, 32), np.uint8), meta)
         for r in range(replicas[mould]):

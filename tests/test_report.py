@@ -154,7 +154,7 @@ def fake_inputs(tmp_path):
                      {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2})
         write_sample(store, i, np.ones((8, 8, 8), np.float32),
                      {"sim_seed": 1, "n_cells": 100, "energy": 1.0, "max_force": 1e-4,
-                      "solver": "hybrid", "solver_seconds": 2.0}, "ok")
+                      "solver": "hybrid", "solver_seconds": 2.0, "hardware": "test"}, "ok")
     inputs = {"dataset_summary": d / "summary.csv", "regimes": d / "regimes.csv",
               "gallery": d / "gallery.png", "samples": d / "samples.png",
               "accuracy": d / "accuracy.csv", "statistics": d / "statistics.csv",

@@ -35,7 +35,7 @@ def spec(n=6, seed=3, replicas=None, **attrs):
 
 def sim_meta(n_cells=100):
     return {"sim_seed": 5, "n_cells": n_cells, "energy": -1.5, "max_force": 1e-4,
-            "solver": "hybrid", "solver_seconds": 0.25}
+            "solver": "hybrid", "solver_seconds": 0.25, "hardware": "test"}
 
 
 def fake_fields(sample):

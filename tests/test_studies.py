@@ -126,7 +126,7 @@ def test_reference_ensemble_reads_ok_replicas_from_the_store(tmp_path):
             write_sample(path, sample_index(counts, mould, r),
                          rng.random((8, 8, 8)).astype("float32") if status == "ok" else None,
                          {"sim_seed": r, "n_cells": 100 + mould, "energy": 1.0, "max_force": 0.0,
-                          "solver": "hybrid", "solver_seconds": 1.0 + r}, status)
+                          "solver": "hybrid", "solver_seconds": 1.0 + r, "hardware": "test"}, status)
     ens = reference.reference_ensemble(path)
     assert list(ens.moulds) == [1, 2]  # mould 4 has only 3 ok replicas
     assert ens.raw.shape == (2, 4, 8, 8, 8) and list(ens.n_cells) == [101, 102]

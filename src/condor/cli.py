@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.moulds import MouldParams, load_json, save_json
+from condor.moulds import MouldParams, save_json
 from condor.scenes import PRESETS, get_scene
 
 
@@ -85,15 +85,29 @@ def cmd_mould(args) -> None:
           f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
 
 
+def _user_mould_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--l0-um", type=_positive_float, default=None,
+                        help="cell spacing l0 in micrometres, for a drawing in mm or um")
+    parser.add_argument("--units", choices=["l0", "mm", "um"], default=None,
+                        help="units of a drawing that does not state its own")
+    parser.add_argument("--fit", action="store_true",
+                        help="scale the drawing to the training moulds' area (40%% of the box) "
+                             "instead of keeping its drawn size")
+
+
+def _load_mould(args, scene):
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.drawings)."""
+    from condor.drawings import load_mould
+
+    return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+
+
 def cmd_simulate(args) -> None:
     from condor.stages.dataset import simulate_mould
 
     scene = get_scene(args.scene)
     out = _new_output(args.out, args.force)
-    mould = load_json(args.mould)
-    if abs(mould.box - scene.box) > 1e-9:
-        raise CLIError(f"{args.mould} was generated for a {mould.box:g} l0 box, scene "
-                       f"{scene.name!r} has {scene.box:g} l0: pass the matching --scene")
+    mould = _load_mould(args, scene)
     result = simulate_mould(mould, scene, args.solver, args.budget, args.seed)
     result.save(out)
     print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
@@ -198,7 +212,17 @@ def cmd_predict(args) -> None:
     _refuse_dataset(out)
     _new_output(out, args.force)
     predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode)
-    inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
+    if Path(args.mould).suffix.lower() in (".json", ".svg", ".dxf"):
+        from condor.drawings import training_domain_check
+        from condor.moulds import input_channels
+
+        scene = _checkpoint_scene(predictor)
+        mould = _load_mould(args, scene)
+        for warning in training_domain_check(mould, scene):
+            print(f"condor predict: warning: {warning}", file=sys.stderr)
+        inputs = input_channels(mould, predictor.native)
+    else:
+        inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
     if not inputs.any():
         raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
     prediction = predictor(inputs)
@@ -207,6 +231,17 @@ def cmd_predict(args) -> None:
                       "mode": predictor.mode}, overwrite=args.force)
     print(f"{out}: 8 fields at {predictor.native} px, predicted N_c = "
           f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
+
+
+def _checkpoint_scene(predictor):
+    """The scene preset a checkpoint was trained on (its grid: box and pixels)."""
+    for scene in PRESETS.values():
+        if scene.pixels == predictor.native and predictor.box is not None and \
+                abs(scene.box - predictor.box) < 1e-9 * scene.box:
+            return scene
+    raise CLIError(f"checkpoint {predictor.path!r} was trained on a {predictor.native} px grid "
+                   f"of box {predictor.box} l0, which is no scene preset: give the mould as a "
+                   "(2, H, W) .npy or .png instead")
 
 
 def _refuse_dataset(path: Path) -> None:
@@ -237,8 +272,9 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_mould)
 
-    p = sub.add_parser("simulate", help="simulate one mould (JSON from `condor mould`)")
-    p.add_argument("mould", help="mould JSON")
+    p = sub.add_parser("simulate", help="simulate one mould (JSON, SVG or DXF)")
+    p.add_argument("mould", help="mould: the generator's JSON, a minimal JSON (outline and "
+                   "tethers), an SVG or a DXF drawing (docs/user_moulds.md)")
     p.add_argument("--out", required=True, help="result file (.npz)")
     p.add_argument("--solver", default=None, choices=["anneal", "minimise", "hybrid"],
                    help="default: the simulator's (hybrid)")
@@ -246,6 +282,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="solver budget (anneal: moves per cell); default: the solver's own")
     p.add_argument("--seed", type=_non_negative_int, default=0, help="simulation seed")
     _scene_arg(p)
+    _user_mould_args(p)
     _force_arg(p)
     p.set_defaults(func=cmd_simulate)
 
@@ -298,11 +335,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("predict", help="predict the 8 fields of one mould with a checkpoint")
-    p.add_argument("mould", help="mould JSON from `condor mould`, or (2, H, W) .npy / 2-channel .png")
+    p.add_argument("mould", help="mould: JSON, SVG or DXF (as for simulate), or its input "
+                   "channels as a (2, H, W) .npy / 2-channel .png")
     p.add_argument("--checkpoint", required=True, help="checkpoint from `condor train`")
     p.add_argument("--out", required=True, help="fields.zarr (raw and normalised) or fields.png")
     p.add_argument("--mode", default=None, choices=PREDICTION_MODES,
                    help="BatchNorm/dropout mode (default: the checkpoint's)")
+    _user_mould_args(p)
     _device_arg(p)
     _force_arg(p)
     p.set_defaults(func=cmd_predict)

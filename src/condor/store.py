@@ -70,11 +70,13 @@ SAMPLE_VARIABLES: dict[str, tuple[object, object]] = {
     "max_force": ("float64", np.nan),
     "solver": ("<U24", ""),
     "solver_seconds": ("float64", np.nan),
+    "hardware": ("<U64", ""),
     "status": (f"<U{STATUS_WIDTH}", ""),
     "split": ("<U8", ""),
 }
 MOULD_VARIABLES = ("seed", "symmetry", "order", "removal", "n_tethers")
-SIMULATION_VARIABLES = ("sim_seed", "n_cells", "energy", "max_force", "solver", "solver_seconds")
+SIMULATION_VARIABLES = ("sim_seed", "n_cells", "energy", "max_force", "solver", "solver_seconds",
+                        "hardware")
 EXPECTED_VARIABLES = ("fields_mean", "fields_std", "n_replicas_ok")
 CODECS = {"compressors": [ZstdCodec(level=3), Crc32cCodec()]}
 
@@ -364,7 +366,8 @@ def write_sample(path: str | Path, sample: int, fields: np.ndarray | None, sim_m
                 raise ValueError(f"fields for sample {sample} contain NaN or inf")
             group["fields"][i] = fields.astype("float32")
         for name in SIMULATION_VARIABLES:
-            group[name][i] = sim_meta[name]
+            value = sim_meta[name]
+            group[name][i] = value[:64] if name == "hardware" else value
         group["status"][i] = status[:STATUS_WIDTH]
 
 

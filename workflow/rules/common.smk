@@ -35,6 +35,37 @@ def batch_ids(wildcards):
     return list(BATCHES[int(wildcards.batch)])
 
 
+def evaluation_tables(prefix):
+    """The per-method CSV tables the surrogate evaluation writes into one folder."""
+    return [f"{prefix}_{table}.csv" for table in ("mae", "correlations")]
+
+
+def report_settings(*keys):
+    """Report settings as params: changing one reruns exactly the jobs that use it."""
+    return {k: CONFIG.to_dict()["report"][k] for k in keys}
+
+
+def report_inputs(wildcards):
+    """Every file the report reads, by the key condor.report.REPORT_INPUTS names it with."""
+    return {
+        "dataset_summary": rules.dataset.output[0],
+        "regimes": rules.gallery.output.regimes,
+        "gallery": rules.gallery.output.gallery,
+        "samples": rules.sample_figure.output[0],
+        "accuracy": rules.accuracy.output.accuracy,
+        "statistics": rules.accuracy.output.statistics,
+        "accuracy_chart": rules.accuracy.output.chart,
+        "ladder": rules.ladder.output[0],
+        "convergence": rules.convergence.output.table,
+        "convergence_chart": rules.convergence.output.chart,
+        "stability": rules.stability.output[0],
+        "surrogate_summary": rules.surrogate_summary.output[0],
+        "evaluations": [*expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
+                        f"{EVALUATION}/baselines/figures"],
+        "histories": expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
+    }
+
+
 def moulds_of_batch(mould):
     """The moulds JSON of the batch that holds `mould`."""
     return f"{R}/moulds/batch_{int(mould) // CONFIG.batch_size:04d}.json"
@@ -76,34 +107,9 @@ def repair(stage):
     return marker
 
 
-rule repair_marker:
-    output:
-        temp(f"{R}/.repair/{{name}}"),
-    shell:
-        "touch {output}"
-
-
-# --- one run at a time on a results folder (Snakemake's own lock is off: see the profile) -----
-_LOCK = RunLock(R)
-
-
-onstart:
-    try:
-        _LOCK.acquire()
-    except FolderError as err:
-        sys.exit(f"condor: {err}")
-
-
-onsuccess:
-    _LOCK.release()
-
-
-onerror:
-    _LOCK.release()
-
-
 localrules:
     all,
     init_store,
     repair_marker,
     dataset,
+    dataset_card,

@@ -54,3 +54,21 @@ rule sample_figure:
 
 
 FINAL_TARGETS.extend([*rules.dataset.output, *rules.sample_figure.output])
+
+
+rule dataset_card:
+    conda:
+        CONDA_ENV
+    input:
+        rules.dataset.output,
+    output:
+        f"{R}/README.md",
+    params:
+        store=STORE,
+    log:
+        f"{R}/logs/dataset_card.log",
+    script:
+        "../scripts/dataset_card.py"
+
+
+FINAL_TARGETS.extend(rules.dataset_card.output)

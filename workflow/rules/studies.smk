@@ -8,11 +8,6 @@ STUDY_MOULDS = study_moulds(CONFIG)
 STUDIES = f"{R}/studies"
 
 
-def report_settings(*keys):
-    """The report settings a rule uses, as params: changing one reruns exactly its rules."""
-    return {k: CONFIG.to_dict()["report"][k] for k in keys}
-
-
 rule sweep_mould:
     conda:
         CONDA_ENV

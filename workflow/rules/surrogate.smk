@@ -10,11 +10,6 @@ wildcard_constraints:
     variant="|".join(VARIANTS) or "(?!)",
 
 
-def evaluation_tables(prefix):
-    """The per-method CSV tables the surrogate evaluation writes into one folder."""
-    return [f"{prefix}_{table}.csv" for table in ("mae", "correlations")]
-
-
 rule train:
     conda:
         CONDA_ENV

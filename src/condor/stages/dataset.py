@@ -18,6 +18,7 @@ from __future__ import annotations
 import json
 import logging
 import os
+import platform
 from pathlib import Path
 
 import numpy as np
@@ -113,11 +114,26 @@ def sim_file(out_dir: str | Path, mould: int, replica: int) -> Path:
     return Path(out_dir) / f"{mould:06d}_{replica:02d}.npz"
 
 
+def hardware() -> str:
+    """The machine this process runs on, as the dataset records it: CPU model, cores, arch."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.machine()}"
+
+
 def simulate_mould(mould: Mould, scene: Scene, solver: str | None, budget, seed: int) -> SimResult:
-    """One simulation of `mould` in `scene`; the result records the scene it belongs to."""
+    """One simulation of `mould` in `scene`; the result records the scene it belongs to and
+    the hardware it ran on."""
     result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
                       seed=seed)
     result.info["scene"] = scene.to_dict()
+    result.info["hardware"] = hardware()
     return result
 
 
@@ -177,7 +193,8 @@ def write_fields(config: Config, sims_dir: str | Path, moulds_json: str | Path,
             result = SimResult.load(path)
             meta = {"sim_seed": result.seed, "n_cells": result.n_cells, "energy": result.energy,
                     "max_force": max_force(result), "solver": result.solver,
-                    "solver_seconds": result.seconds}
+                    "solver_seconds": result.seconds,
+                    "hardware": str(result.info.get("hardware", ""))}
             fields = rasterise_result(result, config.scene) if result.status == "ok" else None
             status = result.status
             if fields is not None and not np.all(np.isfinite(fields)):

@@ -28,7 +28,7 @@ from condor.seeds import study_seed
 from condor.simulate import simulate
 
 JUSTIFIED_FRACTION = 0.5  # of one simulation's scatter
-CHANNELS = ("P", "T", "Sx2", "Sy2", "Sz2")
+SCORED_FIELDS = ("P", "T", "Sx2", "Sy2", "Sz2")
 
 
 def n_layers(depth: float) -> int:
@@ -62,7 +62,7 @@ def _rows(study, mould_id, runs: dict, ref_value) -> list[dict]:
         row.update({f"change_{f}": float(v) for f, v in zip(FIELD_NAMES, rel)})
         row.update({f"noise_{f}": float(v) for f, v in zip(FIELD_NAMES, noise)})
         row["justified"] = bool(all(row[f"change_{c}"] <= JUSTIFIED_FRACTION * row[f"noise_{c}"]
-                                    for c in CHANNELS))
+                                    for c in SCORED_FIELDS))
         rows.append(row)
     return rows
 

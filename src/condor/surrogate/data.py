@@ -13,9 +13,11 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
-CHANNEL_NAMES = ("mould", "tether")
-SPLITS = ("train", "val", "test")
+from condor.dataset import usable_samples  # noqa: F401  (the one home; re-exported here)
+from condor.fields import FIELD_NAMES
+from condor.store import CHANNELS as CHANNEL_NAMES
+from condor.store import SPLITS  # noqa: F401
+
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
 
 
@@ -27,21 +29,6 @@ def _named(ds, positions) -> list:
     positions = np.atleast_1d(np.asarray(positions))
     ids = ds["sample"].values[positions] if "sample" in ds.coords else positions
     return [int(i) for i in ids[:12]]
-
-
-def usable_samples(ds, split: str | None = None, all_replicas: bool = False) -> np.ndarray:
-    """Positions (along `sample`) of samples with status "ok", optionally in one split. Only
-    replica 0 of each mould unless `all_replicas` (one sample per mould: extra replicas are
-    the truth of the accuracy study, not more training data; docs/surrogate.md)."""
-    if split is not None and split not in SPLITS:
-        raise ValueError(f"split {split!r} is not one of {SPLITS}")
-    status = np.asarray(ds["status"].values).astype(str)
-    keep = status == "ok"
-    if split is not None:
-        keep &= np.asarray(ds["split"].values).astype(str) == split
-    if not all_replicas and "replica" in ds:
-        keep &= np.asarray(ds["replica"].values) == 0
-    return np.flatnonzero(keep)
 
 
 def check_dataset(ds) -> None:
