@@ -10,7 +10,6 @@ configfile: "config/config.yaml"
 
 
 include: "workflow/rules/common.smk"
-include: "workflow/rules/repair.smk"
 include: "workflow/rules/lock.smk"
 include: "workflow/rules/moulds.smk"
 include: "workflow/rules/simulate.smk"

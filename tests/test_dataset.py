@@ -88,3 +88,20 @@ def test_card_counts_and_core_hours_match_the_store(store, tmp_path):
     assert test_row[0] == "test" and "5" in test_row
     assert "CPU A" in text and "CPU B" in text
     assert "condor.open_dataset" in text and "check-store --deep" in text
+
+
+def test_training_data_names_a_corrupt_or_lost_sample(store, tmp_path):
+    import shutil
+
+    from condor.surrogate.data import DataError, SampleSource
+
+    copy = tmp_path / "copy.zarr"
+    shutil.copytree(store, copy)
+    chunk = next(p for p in (copy / "fields" / "c" / "2").rglob("*") if p.is_file())
+    chunk.write_bytes(chunk.read_bytes()[:-7] + b"garbage")
+    ds = condor.open_dataset(copy)
+    with pytest.raises(DataError, match=r"\[2\]"):
+        SampleSource(ds, dataset.usable_samples(ds, "train"), None)
+    shutil.rmtree(copy / "fields" / "c" / "2")  # a lost chunk reads as NaN: named too
+    with pytest.raises(DataError, match=r"sample\(s\) \[2\].*NaN"):
+        SampleSource(condor.open_dataset(copy), dataset.usable_samples(ds, "train"), None)

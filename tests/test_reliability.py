@@ -110,7 +110,7 @@ def test_a_deleted_fields_chunk_is_found_and_repaired(folder):
 
 def test_a_deleted_simulation_and_status_chunk_are_repaired(folder):
     before = fields_of(folder)
-    shutil.rmtree(store(folder) / "status" / "c" / "4")
+    (store(folder) / "status" / "c" / "4").unlink()  # a 1-d array's chunk is a file
     for sim in (folder / "results" / "sims" / "batch_0002").glob("*.npz"):
         sim.unlink()
     proc = run(folder, *small_args(folder, "--until", "dataset"))
@@ -153,7 +153,8 @@ def test_a_results_path_that_is_a_file_is_one_line(tmp_path):
 def test_a_misspelt_key_is_one_line_without_the_schema(tmp_path):
     proc = run(tmp_path, *small_args(tmp_path, "-n", "--config", "solvr=anneal"), check=False)
     assert proc.returncode != 0 and "solvr" in proc.stderr
-    assert "properties" not in proc.stderr and len(proc.stderr.splitlines()) < 5
+    assert "default:" not in proc.stderr and "description" not in proc.stderr  # no schema dump
+    assert len(proc.stderr.splitlines()) < 5
 
 
 def condor(*args, cwd):

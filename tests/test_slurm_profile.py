@@ -38,7 +38,7 @@ def profile():
 
 def test_every_job_rule_has_runtime_memory_and_cores(profile):
     local = local_rules()
-    assert {"init_store", "repair_marker", "report"} <= local
+    assert {"init_store", "report"} <= local
     resources = profile["set-resources"]
     missing = [r for r in rule_names() if r not in local and r not in resources]
     assert not missing, f"rules without resources in {PROFILE}: {missing}"

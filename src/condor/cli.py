@@ -11,8 +11,12 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.moulds import MouldParams, save_json
+from condor.drawings import load_mould, training_domain_check
+from condor.moulds import MouldParams, input_channels, save_json
 from condor.scenes import PRESETS, get_scene
+from condor.simulate import SimResult
+from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
+from condor.store import FORMAT, check_metadata, check_store
 
 
 class CLIError(Exception):
@@ -68,8 +72,6 @@ def _new_output(path, force: bool, what: str = "--out") -> Path:
 # --- dataset stages ----------------------------------------------------------------------------
 
 def cmd_mould(args) -> None:
-    from condor.stages.dataset import make_mould
-
     scene = get_scene(args.scene)
     params = MouldParams() if args.no_tether_fraction is None else \
         MouldParams(no_tether_fraction=args.no_tether_fraction)
@@ -97,14 +99,10 @@ def _user_mould_args(parser: argparse.ArgumentParser) -> None:
 
 def _load_mould(args, scene):
     """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.drawings)."""
-    from condor.drawings import load_mould
-
     return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
 
 
 def cmd_simulate(args) -> None:
-    from condor.stages.dataset import simulate_mould
-
     scene = get_scene(args.scene)
     out = _new_output(args.out, args.force)
     mould = _load_mould(args, scene)
@@ -117,9 +115,6 @@ def cmd_simulate(args) -> None:
 
 
 def cmd_rasterise(args) -> None:
-    from condor.simulate import SimResult
-    from condor.stages.dataset import rasterise_result
-
     result = SimResult.load(args.simulation)
     if result.status != "ok":
         raise CLIError(f"{args.simulation} is a failed simulation ({result.status}); no fields")
@@ -138,8 +133,6 @@ def cmd_rasterise(args) -> None:
 
 
 def cmd_check_store(args) -> None:
-    from condor.store import check_metadata, check_store
-
     problems = check_metadata(args.store)
     table = check_store(args.store, deep=args.deep)
     counts = table["state"].value_counts()
@@ -213,9 +206,6 @@ def cmd_predict(args) -> None:
     _new_output(out, args.force)
     predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode)
     if Path(args.mould).suffix.lower() in (".json", ".svg", ".dxf"):
-        from condor.drawings import training_domain_check
-        from condor.moulds import input_channels
-
         scene = _checkpoint_scene(predictor)
         mould = _load_mould(args, scene)
         for warning in training_domain_check(mould, scene):
@@ -246,8 +236,6 @@ def _checkpoint_scene(predictor):
 
 def _refuse_dataset(path: Path) -> None:
     """A prediction is never written over a dataset store, --force or not."""
-    from condor.store import FORMAT
-
     meta = path / "zarr.json"
     if meta.is_file() and FORMAT in meta.read_text(errors="replace"):
         raise CLIError(f"--out {str(path)!r} is a condor dataset store; a prediction never "

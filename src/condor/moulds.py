@@ -26,6 +26,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import shapely
 from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, mapping, shape
@@ -796,11 +797,9 @@ def load_json(path) -> Mould:
 # --------------------------------------------------------------------------- tables
 
 
-def regime_table(moulds) -> "pandas.DataFrame":  # noqa: F821
+def regime_table(moulds) -> pd.DataFrame:
     """Observed regime shares and removal frequencies (among tethered moulds) per regime,
     next to the paper's table (rows renormalised). One row per regime."""
-    import pandas as pd
-
     moulds = list(moulds)
     rows = []
     for symmetry in SYMMETRIES:

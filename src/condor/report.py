@@ -22,6 +22,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from condor import __version__
+from condor.store import open_store
+
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;padding:0 1em;color:#222}
 h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
@@ -404,8 +407,6 @@ def _evaluation_caption(name: str, stem: str) -> str:
 def store_statistics(store) -> pd.DataFrame:
     """Median, min, max and total of cells, solver CPU seconds and energy per cell over the ok
     samples of a dataset store."""
-    from condor.store import open_store
-
     ds = open_store(store)
     ok = ds["status"].values.astype(str) == "ok"
     if not ok.any():
@@ -435,8 +436,6 @@ def _dataset_section(inp, store) -> Section:
 def condor_report(config, inputs, store, out_html) -> Path:
     """Write the workflow report for `config` from `inputs` (a mapping with every key of
     REPORT_INPUTS) and the dataset `store`, to `out_html` (one self-contained file)."""
-    from condor import __version__
-
     inputs = dict(inputs.items())  # a Snakemake Namedlist or a dict
     missing = [k for k in REPORT_INPUTS if k not in inputs]
     if missing:

@@ -1,7 +1,6 @@
 # The Config (validated once), the results folder's checks, paths, and the helpers the rules
 # use. Rules only declare: inputs, outputs, params, resources and a script calling one stage.
 import sys
-import time
 from pathlib import Path
 
 from condor.config import Config, ConfigError
@@ -72,11 +71,11 @@ def moulds_of_batch(mould):
 
 
 # --- repairs: a flag file claims a batch is done but the store lost its samples ---------------
-# The main process compares the flags with the store (a listing, no decompression) and gives
-# each stale job a fresh marker input, so Snakemake reruns exactly those batches (and, by
-# mtime, what follows them). `snakemake -n` shows the repairs.
+# The main process compares the flags with the store (a listing, no decompression). Each stale
+# job gets a marker input, touched now, so it is newer than the job's flag and Snakemake
+# reruns exactly those jobs (and, by mtime, what follows them); `snakemake -n` shows them.
+# A marker is an input only while its job is stale; results/.repair keeps them as a record.
 REPAIR = {"init_store": False, "moulds": set(), "simulate": set(), "fields": set()}
-NONCE = str(time.time_ns())
 if workflow.is_main_process and Path(STORE_MANIFEST).exists():
     if not Path(STORE).exists():
         REPAIR["init_store"] = True
@@ -96,13 +95,23 @@ if workflow.is_main_process and Path(STORE_MANIFEST).exists():
                 REPAIR["simulate"].add(_bid)
 
 
+def repair_marker(stage, batch="all"):
+    return Path(f"{R}/.repair/{stage}_{batch}")
+
+
+for _stage, _stale in REPAIR.items():
+    for _bid in (["all"] if _stale is True else [] if _stale is False else sorted(_stale)):
+        repair_marker(_stage, _bid).parent.mkdir(parents=True, exist_ok=True)
+        repair_marker(_stage, _bid).touch()
+
+
 def repair(stage):
-    """Input function: a fresh marker for a job the store shows to be stale, else nothing."""
+    """Input function: the touched marker of a job the store shows to be stale, else nothing."""
 
     def marker(wildcards):
         batch = getattr(wildcards, "batch", None)
         stale = REPAIR[stage] if batch is None else batch in REPAIR[stage]
-        return [f"{R}/.repair/{stage}_{batch or 'all'}_{NONCE}"] if stale else []
+        return [str(repair_marker(stage, batch or "all"))] if stale else []
 
     return marker
 
@@ -110,6 +119,5 @@ def repair(stage):
 localrules:
     all,
     init_store,
-    repair_marker,
     dataset,
     dataset_card,

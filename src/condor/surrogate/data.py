@@ -25,6 +25,15 @@ class DataError(ValueError):
     """Training or evaluation data that cannot be used; the message names the samples."""
 
 
+def _readable(ds, position) -> bool:
+    try:
+        sel = ds.isel(sample=int(position))
+        np.asarray(sel["inputs"].values), np.asarray(sel["fields"].values)
+        return True
+    except Exception:
+        return False
+
+
 def _named(ds, positions) -> list:
     positions = np.atleast_1d(np.asarray(positions))
     ids = ds["sample"].values[positions] if "sample" in ds.coords else positions
@@ -272,9 +281,10 @@ class SampleSource:
             raw_inputs = np.asarray(sel["inputs"].values, dtype=np.float32)
             fields = np.asarray(sel["fields"].values, dtype=np.float32)
         except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
-            raise DataError(f"cannot read sample(s) {_named(self.ds, positions)} of the "
-                            f"dataset: {type(err).__name__}: {err} (condor check-store --deep "
-                            "lists the corrupt samples)") from err
+            bad = [p for p in np.atleast_1d(positions) if not _readable(self.ds, p)]
+            raise DataError(f"cannot read sample(s) {_named(self.ds, bad or positions)} of the "
+                            f"dataset ({type(err).__name__}: {str(err)[:200]}); condor "
+                            "check-store --deep lists the corrupt samples") from None
         bad = ~np.isfinite(fields).all(axis=tuple(range(1, fields.ndim)))
         if bad.any():
             raise DataError(f"sample(s) {_named(self.ds, positions[bad])} marked ok hold NaN or "
