@@ -24,6 +24,7 @@ from condor import estimators as est
 from condor.fields import FIELD_NAMES, cell_fields, normalise
 from condor.lattice import HALF
 from condor.moulds import generate_mould
+from condor.progress import progress
 from condor.seeds import study_seed
 from condor.simulate import simulate
 
@@ -38,7 +39,7 @@ def n_layers(depth: float) -> int:
 
 def _ensemble(polygon, tethers, depth, box, scene, sigma, seeds, solver):
     fields, cells, seconds = [], 0, []
-    for seed in seeds:
+    for seed in progress(seeds, desc=f"depth {depth:g}, box {box:g}", unit="run"):
         r = simulate(polygon, tethers, depth, solver, None, seed)
         if r.status != "ok":
             raise RuntimeError(f"convergence run failed ({r.status}) at depth {depth}, box {box}")

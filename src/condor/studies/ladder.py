@@ -16,6 +16,7 @@ import pandas as pd
 
 from condor import estimators as est
 from condor.fields import cell_fields, normalise
+from condor.progress import progress
 from condor.seeds import study_seed
 from condor.studies.reference import anneal_then_fire
 
@@ -43,7 +44,8 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
                      "distance_to_dataset": 0.0, "spread": _rms(est.noise_ceiling(truth[m:m + 1]))})
         for budget in budgets:
             fields, energies, accept, inverted = [], [], [], []
-            for k in range(n_seeds):
+            for k in progress(range(n_seeds), desc=f"mould {mould.mould_id} anneal {budget:g}",
+                              unit="run"):
                 seed = study_seed(dataset_seed, mould.mould_id, 1000 + k)
                 r = anneal_then_fire(mould, scene.depth, budget, seed)
                 if r.status != "ok":

@@ -15,6 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from condor.fields import cell_fields
+from condor.progress import progress
 from condor.seeds import study_seed
 from condor.simulate import SimResult, simulate
 from condor.studies.reference import anneal_then_fire
@@ -64,7 +65,7 @@ def run_methods(mould, scene, methods, dataset_seed: int, log=None):
     """Every method on `mould` (study seeds of `dataset_seed`): (rows, raw fields (K, 8, H, W)
     float32 with NaN for a failed run)."""
     rows, fields = [], []
-    for k, method in enumerate(methods):
+    for k, method in enumerate(progress(methods, desc=f"mould {mould.mould_id}", unit="method")):
         result = run_method(mould, scene, method, study_seed(dataset_seed, mould.mould_id, k))
         rows.append({"mould": int(mould.mould_id), "method": method.label,
                      "family": method.family, "seed": result.seed, "cpu_s": result.seconds,
