@@ -30,6 +30,8 @@ from torch import nn
 from torch.nn import functional as F
 
 PREDICTION_MODES = ("eval", "batch_stats", "train")
+UPSAMPLE_MODES = ("transpose", "resize")
+OUTPUT_ACTIVATIONS = ("tanh", "linear")
 PAPER_SIZE = 256
 PAPER_GENERATOR_PARAMETERS = 54_435_080  # Appendix table, BN running statistics included
 PAPER_DISCRIMINATOR_PARAMETERS = 2_774_529
@@ -76,8 +78,15 @@ class UNetConfig:
     n_dropout: int = 3
     dropout: float = 0.5
     leaky_slope: float = 0.3
+    upsample: str = "transpose"
+    output: str = "tanh"
 
     def __post_init__(self):
+        if self.upsample not in UPSAMPLE_MODES:
+            raise ValueError(f"UNetConfig.upsample {self.upsample!r} is not one of {UPSAMPLE_MODES}")
+        if self.output not in OUTPUT_ACTIVATIONS:
+            raise ValueError(f"UNetConfig.output {self.output!r} is not one of "
+                             f"{OUTPUT_ACTIVATIONS}")
         for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
@@ -137,9 +146,17 @@ def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _up(c_in: int, c_out: int, dropout: float) -> nn.Sequential:
-    layers = [nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=False),
-              TFBatchNorm2d(c_out)]
+def _upconv(c_in: int, c_out: int, mode: str, bias: bool) -> nn.Module:
+    """2x upsampling convolution: a 4x4 stride-2 transposed convolution (its kernel overlaps
+    unevenly, a period-2 pattern), or nearest resize then a 3x3 convolution."""
+    if mode == "transpose":
+        return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=bias)
+    return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"),
+                         nn.Conv2d(c_in, c_out, 3, padding=1, bias=bias))
+
+
+def _up(c_in: int, c_out: int, dropout: float, mode: str = "transpose") -> nn.Sequential:
+    layers = [_upconv(c_in, c_out, mode, bias=False), TFBatchNorm2d(c_out)]
     if dropout > 0:
         layers.append(nn.Dropout(dropout))
     layers.append(nn.ReLU())
@@ -158,7 +175,7 @@ def _init_weights(model: nn.Module, generator: torch.Generator | None) -> None:
 
 class UNetGenerator(nn.Module):
     """U-Net generator: (B, in_channels, size, size) in [-1, 1] -> (B, out_channels, size,
-    size) in (-1, 1) (tanh)."""
+    size), in (-1, 1) (output "tanh") or unbounded (output "linear")."""
 
     def __init__(self, cfg: UNetConfig = UNetConfig(), generator: torch.Generator | None = None):
         super().__init__()
@@ -172,10 +189,11 @@ class UNetGenerator(nn.Module):
         ups = []
         for k, level in enumerate(range(cfg.depth - 2, -1, -1)):
             c_in = widths[level + 1] * (1 if k == 0 else 2)
-            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0))
+            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0,
+                           cfg.upsample))
         self.up = nn.ModuleList(ups)
         last_in = widths[0] * (2 if cfg.depth > 1 else 1)
-        self.last = nn.ConvTranspose2d(last_in, cfg.out_channels, 4, stride=2, padding=1)
+        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True)
         _init_weights(self, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -186,7 +204,8 @@ class UNetGenerator(nn.Module):
         skips = skips[-2::-1]  # encoder outputs below the bottleneck, deepest first
         for block, skip in zip(self.up, skips):
             x = torch.cat([block(x), skip], dim=1)
-        return torch.tanh(self.last(x))
+        x = self.last(x)
+        return torch.tanh(x) if self.cfg.output == "tanh" else x
 
 
 class PatchDiscriminator(nn.Module):
