@@ -30,7 +30,7 @@ from torch import nn
 from torch.nn import functional as F
 
 PREDICTION_MODES = ("eval", "batch_stats", "train")
-UPSAMPLE_MODES = ("transpose", "resize")
+UPSAMPLE_MODES = ("transpose", "resize", "bilinear")
 OUTPUT_ACTIVATIONS = ("tanh", "linear")
 PAPER_SIZE = 256
 PAPER_GENERATOR_PARAMETERS = 54_435_080  # Appendix table, BN running statistics included
@@ -146,13 +146,15 @@ def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _upconv(c_in: int, c_out: int, mode: str, bias: bool) -> nn.Module:
-    """2x upsampling convolution: a 4x4 stride-2 transposed convolution (its kernel overlaps
-    unevenly, a period-2 pattern), or nearest resize then a 3x3 convolution."""
+def _upconv(c_in: int, c_out: int, mode: str, bias: bool, last: bool = False) -> nn.Module:
+    """2x upsampling convolution (see UNetConfig.upsample); `last`: the output layer."""
     if mode == "transpose":
         return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=bias)
-    return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"),
-                         nn.Conv2d(c_in, c_out, 3, padding=1, bias=bias))
+    conv = nn.Conv2d(c_in, c_out, 3, padding=1, bias=bias)
+    if mode == "resize":
+        return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), conv)
+    resize = nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False)
+    return nn.Sequential(resize, conv) if last else nn.Sequential(conv, resize)
 
 
 def _up(c_in: int, c_out: int, dropout: float, mode: str = "transpose") -> nn.Sequential:
@@ -193,7 +195,7 @@ class UNetGenerator(nn.Module):
                            cfg.upsample))
         self.up = nn.ModuleList(ups)
         last_in = widths[0] * (2 if cfg.depth > 1 else 1)
-        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True)
+        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True, last=True)
         _init_weights(self, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:

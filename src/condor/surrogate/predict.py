@@ -26,7 +26,7 @@ def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.nd
     """Physical fields (float64) and spread (or None) of one network run on x."""
     out = model(x.contiguous())
     if getattr(scaling, "kind", None) == "physics":
-        fields, spread = scaling.decode(out.double(), torch.as_tensor(n_cells, dtype=torch.float64,
+        fields, spread = scaling.decode(out.double(), torch.tensor(np.asarray(n_cells), dtype=torch.float64,
                                                                         device=out.device))
         return fields.cpu().numpy(), spread.cpu().numpy()
     return scaling.unscale(out.double().cpu().numpy()), None
