@@ -63,6 +63,12 @@ def study_dataset(store, replica_ids, n_train: int | None, val_ids=None):
     return ds.assign(split=("sample", labels))
 
 
+def _test_ids(store) -> np.ndarray:
+    """The test split's mould ids (the replica moulds, before the replicas exist)."""
+    ds = open_dataset(store)
+    return np.asarray(ds["sample"].values)[np.asarray(ds["split"].values).astype(str) == "test"]
+
+
 def statistics_of(fields, pixel_size) -> np.ndarray:
     """(..., 8, H, W) -> (..., n_statistics), N_c = each field set's own density sum."""
     flat = fields.reshape(-1, *fields.shape[-3:])
@@ -151,12 +157,14 @@ def main() -> None:
     ap.add_argument("--no-symmetrise-too", action="store_true",
                     help="also evaluate without test-time symmetrisation")
     ap.add_argument("--threads", type=int, default=1)
+    ap.add_argument("--train-only", action="store_true", help="train (resume), evaluate nothing")
     args = ap.parse_args()
 
     torch.set_num_threads(args.threads)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    replica_ids = np.load(args.replicas)["mould_ids"]
+    replica_ids = np.load(args.replicas)["mould_ids"] if Path(args.replicas).exists() else \
+        _test_ids(args.val_store or args.store)
     val_ids = None
     if args.val_store:
         vds = open_dataset(args.val_store)
@@ -177,6 +185,8 @@ def main() -> None:
             snapshots[epochs] = out / f"{args.name}@{epochs}.pt"
             shutil.copyfile(checkpoint, snapshots[epochs])
     snapshots[final_epochs] = checkpoint
+    if args.train_only:
+        return
     train_cpu, train_wall = time.process_time() - t_cpu, time.perf_counter() - t_wall
     train_seconds = sum(r["seconds"] for r in history)
     n_train = len(usable_samples(ds, "train"))

@@ -178,11 +178,10 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_predict(args) -> None:
-    from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
+    from condor.surrogate.predict import Predictor, write_prediction
 
     predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode)
-    inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
-    prediction = predictor(inputs)
+    inputs, prediction = predictor.predict_file(args.mould)  # a JSON's N_c: its lattice count
     write_prediction(args.out, prediction, inputs, predictor.pixel_size,
                      {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
                       "mode": predictor.mode})
@@ -235,7 +234,7 @@ def _device_arg(parser: argparse.ArgumentParser) -> None:
 
 # condor.surrogate's MODEL_KINDS and PREDICTION_MODES, spelled out so that the parser does
 # not import torch (tests/test_cli_surrogate.py checks they agree).
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
+MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
 PREDICTION_MODES = ("eval", "batch_stats", "train")
 
 
@@ -244,7 +243,7 @@ def _surrogate_parsers(sub) -> None:
     p.add_argument("--store", required=True, help="dataset store (.zarr) from the workflow")
     p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt); resumed if present")
     p.add_argument("--model", default="unet_l1", choices=MODEL_KINDS,
-                   help="pix2pix (the paper's, 256 px), unet_gan or unet_l1 (default: %(default)s)")
+                   help="pix2pix (the paper's, 256 px), unet_gan, unet_l1 or unet (default: %(default)s)")
     p.add_argument("--epochs", type=_non_negative_int, default=None, help="epochs in all (default 10)")
     p.add_argument("--batch-size", type=_non_negative_int, default=None, help="default 1 (the paper's)")
     p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default 2e-4)")

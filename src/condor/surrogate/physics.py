@@ -39,6 +39,7 @@ from .data import FIELD_NAMES, PAIRED_FIELDS
 N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
+CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
 TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
 _IDX = {f: i for i, f in enumerate(FIELD_NAMES)}
 
@@ -53,10 +54,16 @@ class PhysicsHead:
     kind = "physics"
     n_outputs = N_OUTPUTS
 
-    def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0):
+    def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
+                 spread_factor=None):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
         self.tension_scale = float(tension_scale)
         self.nll_weight = float(nll_weight)
+        # Per-field factor on the predicted spread, fitted on the validation split after
+        # training (calibrate_spread): the training residuals are those of moulds the model
+        # has seen, smaller than a new mould's.
+        self.spread_factor = np.ones(len(FIELD_NAMES)) if spread_factor is None else \
+            np.asarray(spread_factor, dtype=np.float64)
         if self.field_scale.shape != (len(FIELD_NAMES),) or np.any(self.field_scale <= 0):
             raise ValueError(f"field_scale must be {len(FIELD_NAMES)} positive values, got "
                              f"{self.field_scale}")
@@ -73,8 +80,10 @@ class PhysicsHead:
     def _scale_tensor(self, like: torch.Tensor) -> torch.Tensor:
         return torch.as_tensor(self.field_scale, dtype=like.dtype, device=like.device)[None, :, None, None]
 
-    def decode(self, out: torch.Tensor, n_cells: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-        """out (B, 16, H, W), n_cells (B,) -> (fields (B, 8, H, W), spread (B, 8, H, W))."""
+    def decode(self, out: torch.Tensor, n_cells: torch.Tensor,
+               calibrated: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """out (B, 16, H, W), n_cells (B,) -> (fields (B, 8, H, W), spread (B, 8, H, W));
+        `calibrated` applies spread_factor (the loss trains the uncalibrated spread)."""
         if out.shape[1] != N_OUTPUTS:
             raise ValueError(f"physics head needs {N_OUTPUTS} channels, got {out.shape[1]}")
         b, _, h, w = out.shape
@@ -90,12 +99,15 @@ class PhysicsHead:
                               weight * (qyy + TENSOR_EPS), weight * (qzz + TENSOR_EPS),
                               weight * qxy, weight * qxz, weight * qyz], dim=1)
         spread = self._scale_tensor(out) * (F.softplus(out[:, 8:]) + SPREAD_FLOOR)
+        if calibrated:
+            spread = spread * torch.as_tensor(self.spread_factor, dtype=out.dtype,
+                                              device=out.device)[None, :, None, None]
         return fields, spread
 
     def loss(self, out: torch.Tensor, target: torch.Tensor, n_cells) -> tuple[torch.Tensor, dict]:
         """Squared error of the mean / field_scale^2, plus nll_weight x the Gaussian NLL of
         the (detached) residual under the spread; both averaged over pixels and fields."""
-        fields, spread = self.decode(out, n_cells)
+        fields, spread = self.decode(out, n_cells, calibrated=False)
         scale = self._scale_tensor(out)
         mse = (((fields - target) / scale) ** 2).mean()
         residual = (target - fields).detach()
@@ -105,11 +117,27 @@ class PhysicsHead:
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "field_scale": self.field_scale.tolist(),
-                "tension_scale": self.tension_scale, "nll_weight": self.nll_weight}
+                "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
+                "spread_factor": self.spread_factor.tolist()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
-        return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0))
+        return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
+                   d.get("spread_factor"))
+
+    def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
+        """Set spread_factor so that, per field, the central `level` interval fields -/+ z
+        spread covers `level` of the single-simulation values `truth` over the `mask` pixels
+        ((S, 8, H, W) arrays of held-out moulds, spread as predicted with the current factor;
+        mask (S, H, W) bool). Returns the new factor."""
+        from .calibration import z_of
+
+        z = np.abs(np.asarray(truth, np.float64) - fields) / np.asarray(spread, np.float64)
+        z = np.moveaxis(z, 1, 0)[:, np.asarray(mask, bool)]  # (8, pixels)
+        factor = np.quantile(z, level, axis=1) / z_of(level)
+        self.spread_factor = self.spread_factor * np.where(np.isfinite(factor) & (factor > 0),
+                                                           factor, 1.0)
+        return self.spread_factor
 
 
 def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0) -> PhysicsHead:

@@ -28,7 +28,7 @@ from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, Sampl
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, fit_physics_head, tissue_mask
-from .predict import default_device, run_generator
+from .predict import default_device, run_model
 
 MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
 HEADS = ("tanh", "physics")
@@ -246,14 +246,19 @@ def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig, head=None, n_cells=N
 
 def validation_mae(G, scaling, source: SampleSource, mode: str, device,
                    symmetrise: bool = False) -> float:
-    """Mean absolute error over pixels, fields and samples, physical units, native grid."""
+    """Mean absolute error over pixels, fields and samples, physical units, native grid.
+    A physics head's spread is recalibrated on these moulds (PhysicsHead.calibrate_spread,
+    inside the tissue: the mould and tether pixels)."""
     if len(source) == 0:
         return float("nan")
     items = np.arange(len(source))
     inputs = np.asarray(source.ds["inputs"].isel(sample=source.indices).values, dtype=np.float32)
-    pred = run_generator(G, scaling, inputs, mode, device=device, symmetrise=symmetrise,
-                         n_cells=source.n_cells)
-    return float(np.abs(pred - source.native_fields(items)).mean())
+    pred, spread = run_model(G, scaling, inputs, mode, device=device, symmetrise=symmetrise,
+                             n_cells=source.n_cells)
+    truth = source.native_fields(items)
+    if spread is not None:
+        scaling.calibrate_spread(pred, spread, truth, inputs.astype(bool).any(axis=1))
+    return float(np.abs(pred - truth).mean())
 
 
 def output_map(cfg: TrainConfig, ds, train_idx, size: int):
