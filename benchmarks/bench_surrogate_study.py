@@ -34,6 +34,7 @@ from condor.fields import mould_statistics
 from condor.store import open_dataset
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
+from condor.surrogate.checkpoint import load_checkpoint
 from condor.surrogate.data import FIELD_NAMES, usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
@@ -158,6 +159,8 @@ def main() -> None:
                     help="also evaluate without test-time symmetrisation")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--train-only", action="store_true", help="train (resume), evaluate nothing")
+    ap.add_argument("--eval-only", action="store_true",
+                    help="evaluate the existing checkpoint (and its --epochs-at snapshots) as is")
     args = ap.parse_args()
 
     torch.set_num_threads(args.threads)
@@ -176,15 +179,23 @@ def main() -> None:
     snapshots = {}
     t_cpu, t_wall = time.process_time(), time.perf_counter()
     final_epochs = cfg.epochs
-    for epochs in sorted(set(args.epochs_at) | {final_epochs}):
-        if epochs > final_epochs:
-            continue
-        cfg.epochs = epochs
-        history = train(ds, cfg, checkpoint, log=lambda line: print(args.name, line, flush=True))
-        if epochs != final_epochs:
-            snapshots[epochs] = out / f"{args.name}@{epochs}.pt"
-            shutil.copyfile(checkpoint, snapshots[epochs])
-    snapshots[final_epochs] = checkpoint
+    if args.eval_only:
+        for epochs in args.epochs_at:
+            if (out / f"{args.name}@{epochs}.pt").exists():
+                snapshots[epochs] = out / f"{args.name}@{epochs}.pt"
+        state = load_checkpoint(checkpoint)
+        snapshots[state["epoch"]] = checkpoint
+        history = state["history"]
+    else:
+        for epochs in sorted(set(args.epochs_at) | {final_epochs}):
+            if epochs > final_epochs:
+                continue
+            cfg.epochs = epochs
+            history = train(ds, cfg, checkpoint, log=lambda line: print(args.name, line, flush=True))
+            if epochs != final_epochs:
+                snapshots[epochs] = out / f"{args.name}@{epochs}.pt"
+                shutil.copyfile(checkpoint, snapshots[epochs])
+        snapshots[final_epochs] = checkpoint
     if args.train_only:
         return
     train_cpu, train_wall = time.process_time() - t_cpu, time.perf_counter() - t_wall
@@ -196,7 +207,8 @@ def main() -> None:
                                        [True, False] if args.no_symmetrise_too else [cfg.symmetrise]):
             rows.append({"name": args.name, "epochs": epochs, "n_train": n_train,
                          "settings": json.dumps(settings, sort_keys=True),
-                         "train_seconds_total": train_seconds, "run_cpu_s": train_cpu,
+                         "train_seconds_total": sum(r["seconds"] for r in history[:epochs]),
+                         "run_cpu_s": train_cpu,
                          "run_wall_s": train_wall,
                          "parameters": sum(p.numel() for p in Predictor(path).model.parameters()),
                          "val_mae": history[epochs - 1].get("val_mae") if len(history) >= epochs else None,

@@ -146,15 +146,16 @@ def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _upconv(c_in: int, c_out: int, mode: str, bias: bool, last: bool = False) -> nn.Module:
-    """2x upsampling convolution (see UNetConfig.upsample); `last`: the output layer."""
+def _upconv(c_in: int, c_out: int, mode: str, bias: bool) -> nn.Module:
+    """2x upsampling convolution (see UNetConfig.upsample)."""
     if mode == "transpose":
         return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=bias)
     conv = nn.Conv2d(c_in, c_out, 3, padding=1, bias=bias)
     if mode == "resize":
         return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), conv)
-    resize = nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False)
-    return nn.Sequential(resize, conv) if last else nn.Sequential(conv, resize)
+    # Linear maps commute with the (linear) resize, so convolving at the coarse level first
+    # costs a quarter of the arithmetic of resize-then-convolve for the same kind of map.
+    return nn.Sequential(conv, nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False))
 
 
 def _up(c_in: int, c_out: int, dropout: float, mode: str = "transpose") -> nn.Sequential:
@@ -195,7 +196,7 @@ class UNetGenerator(nn.Module):
                            cfg.upsample))
         self.up = nn.ModuleList(ups)
         last_in = widths[0] * (2 if cfg.depth > 1 else 1)
-        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True, last=True)
+        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True)
         _init_weights(self, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
