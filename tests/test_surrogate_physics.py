@@ -9,6 +9,7 @@ import xarray as xr
 from shapely.geometry import Polygon, box
 
 from condor.lattice import build_lattice
+from condor.moulds import generate_mould, save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels, z_of)
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
@@ -151,6 +152,12 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
     assert float(written["raw"].sel(field="P").sum()) == pytest.approx(123, rel=1e-5)
     write_prediction(tmp_path / "p.png", single, inputs[0])
     assert (tmp_path / "p.png").stat().st_size > 0
+    # a mould JSON: N_c is its exact lattice count at the training depth
+    mould = generate_mould(3, 1, box=predictor.box)
+    save_json(mould, tmp_path / "m.json")
+    _, from_file = predictor.predict_file(tmp_path / "m.json")
+    exact = build_lattice(mould.polygon, mould.tethers, 2.0).n_cells
+    assert from_file.raw[I["P"]].sum() == pytest.approx(exact, rel=1e-5)
 
 
 def test_old_tanh_checkpoints_still_predict_without_spread(physics_ds, tmp_path):
