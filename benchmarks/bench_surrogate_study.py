@@ -120,7 +120,19 @@ def measure(prediction, spread, replicas, inputs, pixel_size, scale) -> dict:
     return row
 
 
-def evaluate_checkpoint(checkpoint, ds, replicas_npz, modes, symmetrise_options) -> list[dict]:
+def recalibrate_spread(predictor, ds) -> None:
+    """Refit the physics head's spread factor on the val split, from factor 1, as training
+    does after its last validation (for checkpoints written before the pair-tied factor)."""
+    val = usable_samples(ds, "val")
+    inputs = np.asarray(ds["inputs"].isel(sample=val).values, dtype=np.float32)
+    truth = np.asarray(ds["fields"].isel(sample=val).values, dtype=np.float64)
+    predictor.scaling.spread_factor = np.ones(len(FIELD_NAMES))
+    p = predictor(inputs, n_cells=np.asarray(ds["n_cells"].values)[val])
+    predictor.scaling.calibrate_spread(p.raw, p.spread, truth, inputs.astype(bool).any(axis=1))
+
+
+def evaluate_checkpoint(checkpoint, ds, replicas_npz, modes, symmetrise_options,
+                        recalibrate: bool = False) -> list[dict]:
     data = np.load(replicas_npz)
     ids = data["mould_ids"]
     replicas = data["fields"].astype(np.float64)
@@ -135,10 +147,13 @@ def evaluate_checkpoint(checkpoint, ds, replicas_npz, modes, symmetrise_options)
     for mode in modes:
         for symmetrise in symmetrise_options:
             predictor.mode, predictor.symmetrise = mode, symmetrise
+            if recalibrate and predictor.needs_n_cells:
+                recalibrate_spread(predictor, ds)
             t0 = time.perf_counter()
             p = predictor(inputs, n_cells=n_cells)
             seconds = (time.perf_counter() - t0) / len(inputs)
             rows.append({"mode": mode, "symmetrise": symmetrise, "predict_s_per_mould": seconds,
+                         "spread_factor": json.dumps(np.round(getattr(predictor.scaling, "spread_factor", np.ones(1)), 4).tolist()),
                          **measure(p.raw.astype(np.float64), p.spread, replicas, inputs,
                                    pixel_size, scale)})
     return rows
@@ -159,6 +174,8 @@ def main() -> None:
                     help="also evaluate without test-time symmetrisation")
     ap.add_argument("--threads", type=int, default=1)
     ap.add_argument("--train-only", action="store_true", help="train (resume), evaluate nothing")
+    ap.add_argument("--recalibrate", action="store_true",
+                    help="refit the spread factor on the val split before evaluating")
     ap.add_argument("--eval-only", action="store_true",
                     help="evaluate the existing checkpoint (and its --epochs-at snapshots) as is")
     args = ap.parse_args()
@@ -186,6 +203,8 @@ def main() -> None:
         state = load_checkpoint(checkpoint)
         snapshots[state["epoch"]] = checkpoint
         history = state["history"]
+        settings = {**state["config"], "unet": state["generator_config"]}
+        cfg.symmetrise = bool(state["config"].get("symmetrise", False))
     else:
         for epochs in sorted(set(args.epochs_at) | {final_epochs}):
             if epochs > final_epochs:
@@ -204,7 +223,8 @@ def main() -> None:
     rows = []
     for epochs, path in sorted(snapshots.items()):
         for row in evaluate_checkpoint(path, ds, args.replicas, args.modes,
-                                       [True, False] if args.no_symmetrise_too else [cfg.symmetrise]):
+                                       [True, False] if args.no_symmetrise_too else [cfg.symmetrise],
+                                       args.recalibrate):
             rows.append({"name": args.name, "epochs": epochs, "n_train": n_train,
                          "settings": json.dumps(settings, sort_keys=True),
                          "train_seconds_total": sum(r["seconds"] for r in history[:epochs]),

@@ -80,6 +80,7 @@ class UNetConfig:
     leaky_slope: float = 0.3
     upsample: str = "transpose"
     output: str = "tanh"
+    detached_outputs: int = 0
 
     def __post_init__(self):
         if self.upsample not in UPSAMPLE_MODES:
@@ -90,6 +91,9 @@ class UNetConfig:
         for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.detached_outputs <= self.out_channels:
+            raise ValueError(f"UNetConfig.detached_outputs={self.detached_outputs} is not in "
+                             f"[0, out_channels={self.out_channels}]")
         if self.size % (2 ** self.depth):
             raise ValueError(f"UNetConfig.size={self.size} is not divisible by "
                              f"2**depth={2 ** self.depth}")
@@ -207,7 +211,11 @@ class UNetGenerator(nn.Module):
         skips = skips[-2::-1]  # encoder outputs below the bottleneck, deepest first
         for block, skip in zip(self.up, skips):
             x = torch.cat([block(x), skip], dim=1)
-        x = self.last(x)
+        k = self.cfg.out_channels - self.cfg.detached_outputs
+        if k < self.cfg.out_channels and torch.is_grad_enabled():
+            x = torch.cat([self.last(x)[:, :k], self.last(x.detach())[:, k:]], dim=1)
+        else:
+            x = self.last(x)
         return torch.tanh(x) if self.cfg.output == "tanh" else x
 
 

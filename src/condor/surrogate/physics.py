@@ -135,6 +135,9 @@ class PhysicsHead:
         z = np.abs(np.asarray(truth, np.float64) - fields) / np.asarray(spread, np.float64)
         z = np.moveaxis(z, 1, 0)[:, np.asarray(mask, bool)]  # (8, pixels)
         factor = np.quantile(z, level, axis=1) / z_of(level)
+        for a, b in PAIRED_FIELDS:  # one factor per pair, so that it commutes with symmetries
+            pair = [_IDX[a], _IDX[b]]
+            factor[pair] = np.quantile(z[pair].ravel(), level) / z_of(level)
         self.spread_factor = self.spread_factor * np.where(np.isfinite(factor) & (factor > 0),
                                                            factor, 1.0)
         return self.spread_factor

@@ -64,6 +64,8 @@ class TrainConfig:
     (each field divided by its RMS, linear output); tanh head only.
     loss_region: "all" pixels or "tissue" (the mould and tethers dilated by the kernel reach).
     nll_weight: weight of the spread's NLL against the mean's squared error (physics head).
+    detach_spread: the spread channels read the network's last features without training
+    them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     """
 
     model: str = "pix2pix"
@@ -88,6 +90,7 @@ class TrainConfig:
     scaling: str = "minmax"
     loss_region: str = "all"
     nll_weight: float = 1.0
+    detach_spread: bool = False
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -124,7 +127,9 @@ class TrainConfig:
             return UNetConfig.paper(), PatchConfig()
         unet = self.unet or UNetConfig.for_size(native_size)
         if self.head == "physics":
-            unet = replace(unet, out_channels=PhysicsHead.n_outputs, output="linear")
+            unet = replace(unet, out_channels=PhysicsHead.n_outputs, output="linear",
+                           detached_outputs=PhysicsHead.n_outputs - len(FIELD_NAMES)
+                           if self.detach_spread else 0)
         elif self.scaling == "standard":
             unet = replace(unet, output="linear")
         if self.model in ("unet_l1", "unet"):
