@@ -107,6 +107,13 @@ def measure(prediction, spread, replicas, inputs, pixel_size, scale) -> dict:
                                                 replicas[:, 0, 0].sum((1, 2)) - 1).max())
     row["checkerboard"] = float((checkerboard(prediction) / np.asarray(scale)).mean())
     row["checkerboard_replica_mean"] = float((checkerboard(replicas.mean(1)) / np.asarray(scale)).mean())
+    # In the difference maps against the replica mean, beside the floor the mean's own noise
+    # sets: (mean of replicas 0-3 - mean of 4-7) / 2 has the noise of an 8-replica mean.
+    half = replicas.shape[1] // 2
+    row["checkerboard_diff"] = float((checkerboard(prediction - replicas.mean(1)) / np.asarray(scale)).mean())
+    row["checkerboard_noise"] = float((checkerboard((replicas[:, :half].mean(1) -
+                                                     replicas[:, half:2 * half].mean(1)) / 2)
+                                       / np.asarray(scale)).mean())
     if spread is not None:
         mask = tissue_pixels(inputs)
         for level, cov in interval_coverage(prediction, spread, replicas, mask).items():
