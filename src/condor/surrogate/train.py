@@ -90,7 +90,7 @@ class TrainConfig:
     scaling: str = "minmax"
     loss_region: str = "all"
     nll_weight: float = 1.0
-    detach_spread: bool = False
+    detach_spread: bool = True
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
