@@ -25,7 +25,9 @@ def test_train_config_maps_flat_settings():
 
 
 @pytest.mark.parametrize("settings, message", [
-    ({"model": "unet"}, "'unet'"),
+    ({"model": "unet_x"}, "'unet_x'"),
+    ({"model": "unet", "loss": "gaussian"}, "physics"),
+    ({"model": "unet", "upsample": "cubic"}, "cubic"),
     ({"model": "unet_l1", "bse": 3}, "bse"),
     ({"model": "pix2pix", "base": 16}, "base"),
     ({"model": "unet_l1", "epochs": -1}, "epochs"),

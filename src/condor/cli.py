@@ -160,7 +160,7 @@ def cmd_check_store(args) -> None:
 
 # condor.surrogate's MODEL_KINDS and PREDICTION_MODES, spelled out so that the parser does
 # not import torch (tests/test_cli_surrogate.py checks they agree).
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
+MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
 PREDICTION_MODES = ("eval", "batch_stats", "train")
 
 
@@ -197,6 +197,7 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_predict(args) -> None:
+    from condor.surrogate.physics import n_cells_of_mould
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
     out = Path(args.out)
@@ -211,11 +212,12 @@ def cmd_predict(args) -> None:
         for warning in training_domain_check(mould, scene):
             print(f"condor predict: warning: {warning}", file=sys.stderr)
         inputs = input_channels(mould, predictor.native)
+        n_cells = n_cells_of_mould(mould.polygon, mould.tethers, scene.depth)  # exact
     else:
-        inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
+        inputs, n_cells = read_mould_inputs(args.mould, predictor.native, predictor.box), None
     if not inputs.any():
         raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
-    prediction = predictor(inputs)
+    prediction = predictor(inputs, n_cells=n_cells)  # None: estimated from the pixels
     write_prediction(out, prediction, inputs, predictor.pixel_size,
                      {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
                       "mode": predictor.mode}, overwrite=args.force)
@@ -292,7 +294,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt); training resumes "
                    "from .NAME.training.pt beside it")
     p.add_argument("--model", default="unet_l1", choices=MODEL_KINDS,
-                   help="pix2pix (the paper's, 256 px), unet_gan or unet_l1 (default: %(default)s)")
+                   help="pix2pix (the paper's, 256 px), unet_gan, unet_l1 or unet (default: %(default)s)")
     p.add_argument("--epochs", type=_positive_int, default=None, help="epochs in all (default 10)")
     p.add_argument("--batch-size", type=_positive_int, default=None, help="default 1 (the paper's)")
     p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default 2e-4)")

@@ -82,5 +82,14 @@ def discriminator_from_checkpoint(state: dict, path="<checkpoint>") -> PatchDisc
     return model
 
 
-def scaling_from_checkpoint(state: dict) -> FieldScaling:
-    return FieldScaling.from_dict(state["scaling"])
+def scaling_from_checkpoint(state: dict, path="<checkpoint>"):
+    """The checkpoint's output map: a FieldScaling (tanh head) or a physics.PhysicsHead."""
+    from .physics import PhysicsHead
+
+    d = state["scaling"]
+    try:
+        if isinstance(d, dict) and d.get("kind") == PhysicsHead.kind:
+            return PhysicsHead.from_dict(d)
+        return FieldScaling.from_dict(d)
+    except (KeyError, TypeError, ValueError) as err:
+        raise CheckpointMismatchError(f"checkpoint {str(path)!r}: bad output scaling: {err}") from err

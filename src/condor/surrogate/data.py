@@ -269,6 +269,9 @@ class SampleSource:
         n_bytes = len(self.indices) * 10 * self.size ** 2 * 4
         self.preload = n_bytes <= PRELOAD_BYTES if preload is None else preload
         self._cache = None
+        # N_c per sample (the lattice count), for the physics head; NaN when not stored
+        self.n_cells = (np.asarray(ds["n_cells"].values, dtype=np.float64)[self.indices]
+                        if "n_cells" in ds else np.full(len(self.indices), np.nan))
         if self.preload and len(self.indices):
             self._cache = self._read(self.indices)
 

@@ -276,6 +276,7 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
     `figure_dir`, default out_dir).
     """
     inputs, true, ids = _test_arrays(ds, split)
+    n_cells = np.asarray(ds["n_cells"].values)[usable_samples(ds, split)] if "n_cells" in ds else None
     pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
     predictor = Predictor(checkpoint_path, device=device)
     modes = modes or list(dict.fromkeys([predictor.mode, "train"]))
@@ -284,7 +285,8 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
     for mode in modes:
         predictor.mode = mode
         method = f"{name}_{mode}"
-        predictions[method], seconds[method] = _timed(lambda: predictor(inputs).raw, len(inputs))
+        predictions[method], seconds[method] = _timed(
+            lambda: predictor(inputs, n_cells=n_cells).raw, len(inputs))
     if baselines:
         more, more_seconds = baseline_predictions(ds, inputs, pixel_size)
         predictions.update(more)

@@ -30,6 +30,8 @@ from torch import nn
 from torch.nn import functional as F
 
 PREDICTION_MODES = ("eval", "batch_stats", "train")
+UPSAMPLE_MODES = ("transpose", "resize", "bilinear")
+OUTPUT_ACTIVATIONS = ("tanh", "linear")
 PAPER_SIZE = 256
 PAPER_GENERATOR_PARAMETERS = 54_435_080  # Appendix table, BN running statistics included
 PAPER_DISCRIMINATOR_PARAMETERS = 2_774_529
@@ -76,11 +78,22 @@ class UNetConfig:
     n_dropout: int = 3
     dropout: float = 0.5
     leaky_slope: float = 0.3
+    upsample: str = "transpose"
+    output: str = "tanh"
+    detached_outputs: int = 0
 
     def __post_init__(self):
+        if self.upsample not in UPSAMPLE_MODES:
+            raise ValueError(f"UNetConfig.upsample {self.upsample!r} is not one of {UPSAMPLE_MODES}")
+        if self.output not in OUTPUT_ACTIVATIONS:
+            raise ValueError(f"UNetConfig.output {self.output!r} is not one of "
+                             f"{OUTPUT_ACTIVATIONS}")
         for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if not 0 <= self.detached_outputs <= self.out_channels:
+            raise ValueError(f"UNetConfig.detached_outputs={self.detached_outputs} is not in "
+                             f"[0, out_channels={self.out_channels}]")
         if self.size % (2 ** self.depth):
             raise ValueError(f"UNetConfig.size={self.size} is not divisible by "
                              f"2**depth={2 ** self.depth}")
@@ -137,9 +150,20 @@ def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:
     return nn.Sequential(*layers)
 
 
-def _up(c_in: int, c_out: int, dropout: float) -> nn.Sequential:
-    layers = [nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=False),
-              TFBatchNorm2d(c_out)]
+def _upconv(c_in: int, c_out: int, mode: str, bias: bool) -> nn.Module:
+    """2x upsampling convolution (see UNetConfig.upsample)."""
+    if mode == "transpose":
+        return nn.ConvTranspose2d(c_in, c_out, 4, stride=2, padding=1, bias=bias)
+    conv = nn.Conv2d(c_in, c_out, 3, padding=1, bias=bias)
+    if mode == "resize":
+        return nn.Sequential(nn.Upsample(scale_factor=2, mode="nearest"), conv)
+    # Linear maps commute with the (linear) resize, so convolving at the coarse level first
+    # costs a quarter of the arithmetic of resize-then-convolve for the same kind of map.
+    return nn.Sequential(conv, nn.Upsample(scale_factor=2, mode="bilinear", align_corners=False))
+
+
+def _up(c_in: int, c_out: int, dropout: float, mode: str = "transpose") -> nn.Sequential:
+    layers = [_upconv(c_in, c_out, mode, bias=False), TFBatchNorm2d(c_out)]
     if dropout > 0:
         layers.append(nn.Dropout(dropout))
     layers.append(nn.ReLU())
@@ -158,7 +182,7 @@ def _init_weights(model: nn.Module, generator: torch.Generator | None) -> None:
 
 class UNetGenerator(nn.Module):
     """U-Net generator: (B, in_channels, size, size) in [-1, 1] -> (B, out_channels, size,
-    size) in (-1, 1) (tanh)."""
+    size), in (-1, 1) (output "tanh") or unbounded (output "linear")."""
 
     def __init__(self, cfg: UNetConfig = UNetConfig(), generator: torch.Generator | None = None):
         super().__init__()
@@ -172,10 +196,11 @@ class UNetGenerator(nn.Module):
         ups = []
         for k, level in enumerate(range(cfg.depth - 2, -1, -1)):
             c_in = widths[level + 1] * (1 if k == 0 else 2)
-            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0))
+            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0,
+                           cfg.upsample))
         self.up = nn.ModuleList(ups)
         last_in = widths[0] * (2 if cfg.depth > 1 else 1)
-        self.last = nn.ConvTranspose2d(last_in, cfg.out_channels, 4, stride=2, padding=1)
+        self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True)
         _init_weights(self, generator)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -186,7 +211,12 @@ class UNetGenerator(nn.Module):
         skips = skips[-2::-1]  # encoder outputs below the bottleneck, deepest first
         for block, skip in zip(self.up, skips):
             x = torch.cat([block(x), skip], dim=1)
-        return torch.tanh(self.last(x))
+        k = self.cfg.out_channels - self.cfg.detached_outputs
+        if k < self.cfg.out_channels and torch.is_grad_enabled():
+            x = torch.cat([self.last(x)[:, :k], self.last(x.detach())[:, k:]], dim=1)
+        else:
+            x = self.last(x)
+        return torch.tanh(x) if self.cfg.output == "tanh" else x
 
 
 class PatchDiscriminator(nn.Module):

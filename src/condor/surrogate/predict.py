@@ -12,6 +12,7 @@ from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from
 from .data import (FIELD_NAMES, N_SYMMETRIES, FieldScaling, apply_symmetry, resample_fields,
                    resample_masks)
 from .models import UNetGenerator, prediction_mode
+from .physics import estimate_n_cells
 
 
 def default_device(device=None) -> torch.device:
@@ -21,40 +22,78 @@ def default_device(device=None) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
-def _symmetrised(model, scaling: FieldScaling, x: torch.Tensor) -> np.ndarray:
-    """Mean over the 16 symmetries g of g^-1 G(g x), physical units (float64). The z-flip
-    leaves the inputs unchanged, so each of the 8 planar transforms runs once and its z-flipped
-    twin is its output with SxSz, SySz negated: the mean of those two sets them to zero."""
-    total = 0.0
+def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
+    """Physical fields (float64) and spread (or None) of one network run on x."""
+    out = model(x.contiguous())
+    if getattr(scaling, "kind", None) == "physics":
+        fields, spread = scaling.decode(out.double(), torch.tensor(np.asarray(n_cells), dtype=torch.float64,
+                                                                        device=out.device))
+        return fields.cpu().numpy(), spread.cpu().numpy()
+    return scaling.unscale(out.double().cpu().numpy()), None
+
+
+def _symmetrised(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
+    """Mean over the 16 symmetries g of g^-1 G(g x), physical units (float64), and the root
+    mean of the transformed-back spread variances. The z-flip leaves the inputs unchanged, so
+    each of the 8 planar transforms runs once and its z-flipped twin is its output with SxSz,
+    SySz negated: the mean of those two sets them to zero."""
+    total, variance = 0.0, 0.0
     for k in range(N_SYMMETRIES // 2):  # the planar ones (FLIP_Z is the highest bit)
         gx, _ = apply_symmetry(k, inputs=x)
-        y = scaling.unscale(model(gx.contiguous()).double().cpu().numpy())
+        y, spread = _decode(model, scaling, gx, n_cells)
         for z in (0, N_SYMMETRIES // 2):
             total = total + apply_symmetry(k + z, fields=y, inverse=True)[1]
-    return total / N_SYMMETRIES
+            if spread is not None:  # variances move with the pixels; signs do not apply
+                variance = variance + np.abs(apply_symmetry(k + z, fields=spread ** 2,
+                                                            inverse=True)[1])
+    spread = None if np.isscalar(variance) else np.sqrt(variance / N_SYMMETRIES)
+    return total / N_SYMMETRIES, spread
 
 
-def run_generator(model: UNetGenerator, scaling: FieldScaling, inputs: np.ndarray, mode: str = "eval",
-                  batch_size: int = 16, device=None, symmetrise: bool = False) -> np.ndarray:
-    """Inputs (S, 2, H, W) 0/1 at the native resolution -> physical fields (S, 8, H, W)
-    float32 at the native resolution. The model runs at its own resolution (inputs resampled
-    nearest, outputs resampled conserving sums). Modes other than "eval" depend on the batch,
-    so they run one sample at a time as the paper did. `symmetrise`: the mean over the 16
-    symmetries of the transformed-back predictions (8 model runs: see _symmetrised)."""
+def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "eval",
+              batch_size: int = 16, device=None, symmetrise: bool = False,
+              n_cells=None) -> tuple[np.ndarray, np.ndarray | None]:
+    """Inputs (S, 2, H, W) 0/1 at the native resolution -> (physical fields (S, 8, H, W),
+    spread (S, 8, H, W) or None) float32 at the native resolution. The model runs at its own
+    resolution (inputs resampled nearest, outputs resampled conserving sums; spreads as
+    variances). Modes other than "eval" depend on the batch, so they run one sample at a time
+    as the paper did. `symmetrise`: the mean over the 16 symmetries of the transformed-back
+    predictions (8 model runs: see _symmetrised). `n_cells` (S,): N_c per mould, needed by a
+    physics head (condor.surrogate.physics)."""
     device = default_device(device) if device is None else torch.device(device)
     native = inputs.shape[-1]
     size = model.cfg.size
+    physics = getattr(scaling, "kind", None) == "physics"
+    if physics:
+        if n_cells is None:
+            raise ValueError("this checkpoint's physics head needs n_cells (N_c per mould)")
+        n_cells = np.asarray(n_cells, dtype=np.float64).reshape(-1)
+        if n_cells.shape != (inputs.shape[0],) or not np.all(np.isfinite(n_cells) & (n_cells > 0)):
+            raise ValueError(f"n_cells must be {inputs.shape[0]} positive numbers, got {n_cells}")
     if mode != "eval":
         batch_size = 1
-    out = np.empty((inputs.shape[0], model.cfg.out_channels, native, native), dtype=np.float32)
+    n_fields = len(FIELD_NAMES) if physics else model.cfg.out_channels
+    out = np.empty((inputs.shape[0], n_fields, native, native), dtype=np.float32)
+    spread_out = np.empty_like(out) if physics else None
     with prediction_mode(model, mode), torch.no_grad():
         for start in range(0, inputs.shape[0], batch_size):
-            x = resample_masks(np.asarray(inputs[start:start + batch_size], dtype=np.float32), size)
+            part = slice(start, start + batch_size)
+            x = resample_masks(np.asarray(inputs[part], dtype=np.float32), size)
             x = torch.from_numpy(np.ascontiguousarray(x)).to(device)
-            y = _symmetrised(model, scaling, x) if symmetrise else \
-                scaling.unscale(model(x).double().cpu().numpy())
-            out[start:start + batch_size] = resample_fields(y, native)
-    return out
+            cells = n_cells[part] if physics else None
+            y, spread = _symmetrised(model, scaling, x, cells) if symmetrise else \
+                _decode(model, scaling, x, cells)
+            out[part] = resample_fields(y, native)
+            if physics:
+                spread_out[part] = np.sqrt(resample_fields(spread ** 2, native))
+    return out, spread_out
+
+
+def run_generator(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "eval",
+                  batch_size: int = 16, device=None, symmetrise: bool = False,
+                  n_cells=None) -> np.ndarray:
+    """The fields of `run_model` alone: (S, 8, H, W) float32, physical, native resolution."""
+    return run_model(model, scaling, inputs, mode, batch_size, device, symmetrise, n_cells)[0]
 
 
 def normalise(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -72,7 +111,11 @@ def normalise(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 class Prediction:
     raw: np.ndarray  # (8, H, W) or (S, 8, H, W): the weighted sums Z_p, as trained
     normalised: np.ndarray  # raw * N_p / N_c
-    n_cells: np.ndarray | float  # N_c, predicted sum of P
+    n_cells: np.ndarray | float  # N_c, the sum of P (given or estimated, for a physics head)
+    # Per pixel and field, the standard deviation of one simulation around the predicted
+    # (expected) fields, same shape and units as raw; None for a checkpoint without a spread
+    # head. A q-interval is raw -/+ z_q * spread (condor.surrogate.calibration).
+    spread: np.ndarray | None = None
 
 
 class Predictor:
@@ -101,7 +144,27 @@ class Predictor:
         """Box side (l0) of the training scene, or None when unknown."""
         return None if self.pixel_size is None else self.pixel_size * self.native
 
-    def __call__(self, inputs, batch_size: int = 16) -> Prediction:
+    @property
+    def depth(self) -> float | None:
+        """Mould depth (l0) of the training scene, or None when the checkpoint lacks it."""
+        return self.state["data"].get("depth")
+
+    @property
+    def needs_n_cells(self) -> bool:
+        """True when the checkpoint's output is built on the mould's cell count N_c."""
+        return getattr(self.scaling, "kind", None) == "physics"
+
+    def estimate_n_cells(self, inputs: np.ndarray):
+        """N_c from input channels alone (physics.estimate_n_cells on the training grid)."""
+        if self.pixel_size is None or self.depth is None:
+            raise ValueError(f"checkpoint {self.path!r} records no pixel size or depth; pass "
+                             "n_cells")
+        return estimate_n_cells(inputs, self.pixel_size, self.depth)
+
+    def __call__(self, inputs, batch_size: int = 16, n_cells=None) -> Prediction:
+        """Predict for inputs (2, H, W) or (S, 2, H, W). `n_cells`: N_c per mould (a number or
+        (S,)), the lattice count (physics.n_cells_of_mould, or the store's `n_cells`); when
+        None and the checkpoint needs it, it is estimated from the inputs."""
         inputs = np.asarray(inputs)
         single = inputs.ndim == 3
         batch = inputs[None] if single else inputs
@@ -110,20 +173,34 @@ class Predictor:
         if batch.shape[-2:] != (self.native, self.native):
             raise ValueError(f"inputs are {batch.shape[-2]}x{batch.shape[-1]} px but checkpoint "
                              f"{self.path!r} was trained on {self.native}x{self.native} px")
-        raw = run_generator(self.model, self.scaling, batch, self.mode, batch_size, self.device,
-                            self.symmetrise)
-        normalised, n_cells = normalise(raw)
+        if self.needs_n_cells:
+            n_cells = self.estimate_n_cells(batch) if n_cells is None else \
+                np.broadcast_to(np.asarray(n_cells, dtype=np.float64), (len(batch),))
+        else:
+            n_cells = None
+        raw, spread = run_model(self.model, self.scaling, batch, self.mode, batch_size,
+                                self.device, self.symmetrise, n_cells)
+        normalised, sums = normalise(raw)
         if single:
-            return Prediction(raw[0], normalised[0], float(n_cells[0]))
-        return Prediction(raw, normalised, n_cells)
+            return Prediction(raw[0], normalised[0], float(sums[0]),
+                              None if spread is None else spread[0])
+        return Prediction(raw, normalised, sums, spread)
+
+    def predict_file(self, path) -> tuple[np.ndarray, Prediction]:
+        """(inputs, prediction) for a mould file (see read_mould): a mould JSON's N_c is its
+        exact lattice count, a picture's or array's is estimated from its pixels."""
+        inputs, n_cells = read_mould(path, self.native, self.box, self.depth)
+        return inputs, self(inputs, n_cells=n_cells)
 
 
 def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
-            symmetrise: bool | None = None) -> Prediction:
+            symmetrise: bool | None = None, n_cells=None) -> Prediction:
     """Predict fields for mould inputs (2, H, W) or (S, 2, H, W) (channels mould, tether; 0/1;
     native resolution of the training data). `mode` (a models.PREDICTION_MODES entry)
-    and `symmetrise` (test-time symmetrisation) default to the checkpoint's training config."""
-    return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise)(inputs)
+    and `symmetrise` (test-time symmetrisation) default to the checkpoint's training config;
+    `n_cells`: see Predictor.__call__."""
+    return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise)(
+        inputs, n_cells=n_cells)
 
 
 def plot_prediction(inputs: np.ndarray, fields: np.ndarray, path=None, title: str = "",
@@ -176,6 +253,23 @@ def _png_channels(path) -> np.ndarray:
     return (pixels[::-1, :, :2].transpose(2, 0, 1) >= 128).astype(np.uint8)
 
 
+def read_mould(path, pixels: int, box: float | None = None,
+               depth: float | None = None) -> tuple[np.ndarray, int | None]:
+    """(inputs, N_c) for the mould in `path` (see read_mould_inputs): N_c is the lattice count
+    of a .json mould at `depth` (physics.n_cells_of_mould), None for .npy/.png or no depth."""
+    from pathlib import Path
+
+    inputs = read_mould_inputs(path, pixels, box)
+    if Path(path).suffix.lower() != ".json" or depth is None:
+        return inputs, None
+    from condor.moulds import load_json
+
+    from .physics import n_cells_of_mould
+
+    mould = load_json(path)
+    return inputs, n_cells_of_mould(mould.polygon, mould.tethers, depth)
+
+
 def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray:
     """Input channels (2, pixels, pixels) uint8 for the mould in `path`:
 
@@ -214,17 +308,23 @@ def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray
 
 def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
                        attrs: dict | None = None):
-    """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `inputs`
-    (channel, y, x), x/y pixel centres in l0 (in pixels when pixel_size is None)."""
+    """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
+    (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x), x/y pixel
+    centres in l0 (in pixels when pixel_size is None)."""
     import xarray as xr
 
     n = inputs.shape[-1]
     step = 1.0 if pixel_size is None else float(pixel_size)
     centres = (np.arange(n) + 0.5) * step
+    variables = {"raw": (("field", "y", "x"), prediction.raw),
+                 "normalised": (("field", "y", "x"), prediction.normalised),
+                 "inputs": (("channel", "y", "x"), np.asarray(inputs, dtype=np.uint8))}
+    if prediction.spread is not None:
+        variables["spread"] = (("field", "y", "x"), prediction.spread,
+                               {"description": "standard deviation of one simulation's field "
+                                               "around the expected (raw) field, per pixel"})
     return xr.Dataset(
-        {"raw": (("field", "y", "x"), prediction.raw),
-         "normalised": (("field", "y", "x"), prediction.normalised),
-         "inputs": (("channel", "y", "x"), np.asarray(inputs, dtype=np.uint8))},
+        variables,
         coords={"field": list(FIELD_NAMES), "channel": ["mould", "tether"], "y": centres,
                 "x": centres},
         attrs={"n_cells": float(prediction.n_cells),
@@ -232,16 +332,18 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
 
 
 def plot_raw_and_normalised(inputs: np.ndarray, prediction: Prediction, path, title: str = ""):
-    """Figure: the inputs, then each field raw (middle row) and normalised (bottom row)."""
+    """Figure: the inputs, then each field raw, normalised and (when predicted) its spread."""
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     n = len(FIELD_NAMES)
-    fig, axes = plt.subplots(3, n, figsize=(2.2 * n, 6.6))
     rows = [[("mould", inputs[0]), ("tether", inputs[1])],
             [(f"{k} raw", f) for k, f in zip(FIELD_NAMES, prediction.raw)],
             [(f"{k} normalised", f) for k, f in zip(FIELD_NAMES, prediction.normalised)]]
+    if prediction.spread is not None:
+        rows.append([(f"{k} spread", f) for k, f in zip(FIELD_NAMES, prediction.spread)])
+    fig, axes = plt.subplots(len(rows), n, figsize=(2.2 * n, 2.2 * len(rows)))
     for ax_row, panels in zip(axes, rows):
         for ax in ax_row:
             ax.axis("off")

@@ -1,5 +1,6 @@
 """Training loop for the surrogate: pix2pix (the paper), a right-sized U-Net with the same GAN
-objective, or a U-Net trained on L1 alone.
+objective, or a U-Net trained on a pixel loss alone ("unet_l1"; "unet" with `loss` l1, mse, or
+gaussian with the physics head of condor.surrogate.physics).
 
 Checkpoint = one dict written atomically at the end of every epoch; `train` resumes from it.
 On CPU with a fixed seed the run is deterministic, and 1 epoch + resume 1 epoch gives the same
@@ -12,7 +13,7 @@ from __future__ import annotations
 import hashlib
 import time
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -21,13 +22,19 @@ import torch
 from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
-from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, SampleSource, apply_symmetry,
-                   check_dataset, compute_scaling, dataset_pixel_size, usable_samples)
+from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
+                   apply_symmetry, check_dataset, compute_scaling, dataset_pixel_size,
+                   usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
-                     UNetGenerator, discriminator_loss, generator_loss, l1_loss)
-from .predict import default_device, run_generator
+                     UNetGenerator, discriminator_loss, generator_loss)
+from .physics import PhysicsHead, fit_physics_head, tissue_mask
+from .predict import default_device, run_model
 
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
+MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
+HEADS = ("tanh", "physics")
+LOSSES = ("l1", "mse", "gaussian")
+SCALINGS = ("minmax", "standard")
+LOSS_REGIONS = ("all", "tissue")
 # Config keys that may change between a run and its resumption.
 RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode",
                   "symmetrise"}
@@ -48,6 +55,17 @@ class TrainConfig:
     sample, drawn from (seed, epoch, sample); the field scaling is then symmetrised.
     symmetrise: predict (validation, and by default `predict`/`evaluate`) as the mean over the
     16 symmetries of the prediction, each transformed back (test-time symmetrisation).
+    head: "tanh" (fields min/max-scaled to [-1, 1] through tanh, the paper's) or "physics"
+    (condor.surrogate.physics: sum(P) = N_c, Sx2+Sy2+Sz2 = P, a spread map; model "unet" and
+    loss "gaussian" only).
+    loss: pixel loss of "unet_l1"/"unet": "l1" (the paper's; its minimiser is the per-pixel
+    median), "mse" (the mean) or "gaussian" (physics head: MSE of the mean + NLL of the spread).
+    scaling: "minmax" ([lo, hi] of the training split -> [-1, 1], tanh output) or "standard"
+    (each field divided by its RMS, linear output); tanh head only.
+    loss_region: "all" pixels or "tissue" (the mould and tethers dilated by the kernel reach).
+    nll_weight: weight of the spread's NLL against the mean's squared error (physics head).
+    detach_spread: the spread channels read the network's last features without training
+    them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     """
 
     model: str = "pix2pix"
@@ -67,6 +85,12 @@ class TrainConfig:
     deterministic: bool = True
     augment: bool = False
     symmetrise: bool = False
+    head: str = "tanh"
+    loss: str = "l1"
+    scaling: str = "minmax"
+    loss_region: str = "all"
+    nll_weight: float = 1.0
+    detach_spread: bool = True
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -79,6 +103,20 @@ class TrainConfig:
         if self.prediction_mode not in PREDICTION_MODES:
             raise ValueError(f"TrainConfig.prediction_mode {self.prediction_mode!r} is not one "
                              f"of {PREDICTION_MODES}")
+        for name, allowed in (("head", HEADS), ("loss", LOSSES), ("scaling", SCALINGS),
+                              ("loss_region", LOSS_REGIONS)):
+            if getattr(self, name) not in allowed:
+                raise ValueError(f"TrainConfig.{name} {getattr(self, name)!r} is not one of {allowed}")
+        if (self.head == "physics") != (self.loss == "gaussian"):
+            raise ValueError(f"TrainConfig: loss 'gaussian' and head 'physics' go together (got "
+                             f"loss {self.loss!r}, head {self.head!r})")
+        if self.head == "physics" and self.model != "unet":
+            raise ValueError(f"TrainConfig: head 'physics' needs model 'unet', got {self.model!r}")
+        if self.model != "unet" and self.loss != "l1":
+            raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
+                             f"{self.loss!r} needs model 'unet'")
+        if self.head == "physics" and self.scaling != "minmax":
+            raise ValueError("TrainConfig: scaling applies to the tanh head only")
         for name in ("epochs", "batch_size", "val_every"):
             if getattr(self, name) < (0 if name == "epochs" else 1):
                 raise ValueError(f"TrainConfig.{name} = {getattr(self, name)} is out of range")
@@ -88,7 +126,13 @@ class TrainConfig:
         if self.model == "pix2pix":
             return UNetConfig.paper(), PatchConfig()
         unet = self.unet or UNetConfig.for_size(native_size)
-        if self.model == "unet_l1":
+        if self.head == "physics":
+            unet = replace(unet, out_channels=PhysicsHead.n_outputs, output="linear",
+                           detached_outputs=PhysicsHead.n_outputs - len(FIELD_NAMES)
+                           if self.detach_spread else 0)
+        elif self.scaling == "standard":
+            unet = replace(unet, output="linear")
+        if self.model in ("unet_l1", "unet"):
             return unet, None
         patch = self.patch or PatchConfig(in_channels=unet.in_channels + unet.out_channels)
         return unet, patch
@@ -143,7 +187,9 @@ def _data_signature(ds, train_idx: np.ndarray) -> dict:
         pixel_size = dataset_pixel_size(ds)
     except ValueError:
         pixel_size = None
-    return {"native_size": int(ds.sizes["x"]), "pixel_size": pixel_size,
+    scene = ds.attrs.get("scene")
+    depth = float(scene["depth"]) if isinstance(scene, dict) and "depth" in scene else None
+    return {"native_size": int(ds.sizes["x"]), "pixel_size": pixel_size, "depth": depth,
             "field_names": list(FIELD_NAMES), "channel_names": list(CHANNEL_NAMES),
             "n_train": int(len(train_idx)), "train_ids_sha1": digest}
 
@@ -166,16 +212,30 @@ def _set_grads(params, grads) -> None:
         p.grad = g
 
 
-def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig) -> dict:
+def pixel_loss(out: torch.Tensor, y: torch.Tensor, x: torch.Tensor, n_cells, head,
+               cfg: TrainConfig) -> tuple[torch.Tensor, dict]:
+    """The pixel loss of a "unet_l1"/"unet" step (see TrainConfig.loss, loss_region)."""
+    if cfg.loss == "gaussian":
+        return head.loss(out, y, n_cells)
+    error = (out - y).abs() if cfg.loss == "l1" else (out - y) ** 2
+    if cfg.loss_region == "tissue":
+        weight = tissue_mask(x)
+        loss = (error * weight).sum() / (weight.sum() * error.shape[1]).clamp_min(1.0)
+    else:
+        loss = error.mean()
+    return loss, {cfg.loss: loss.item()}
+
+
+def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig, head=None, n_cells=None) -> dict:
     """One update as TensorFlow's pix2pix does it: both losses from the same forward pass,
     gradients for both networks, then both optimiser steps."""
     fake = G(x)
     if D is None:
-        loss = l1_loss(fake, y)
+        loss, parts = pixel_loss(fake, y, x, n_cells, head, cfg)
         opt_g.zero_grad(set_to_none=True)
         loss.backward()
         opt_g.step()
-        return {"l1": loss.item(), "g_loss": loss.item()}
+        return {**parts, "g_loss": loss.item()}
     real_logits = D(x, y)
     fake_logits = D(x, fake)
     g_total, l1, adversarial = generator_loss(fake_logits, fake, y, cfg.lam, cfg.adversarial_target)
@@ -191,13 +251,32 @@ def _train_step(G, D, opt_g, opt_d, x, y, cfg: TrainConfig) -> dict:
 
 def validation_mae(G, scaling, source: SampleSource, mode: str, device,
                    symmetrise: bool = False) -> float:
-    """Mean absolute error over pixels, fields and samples, physical units, native grid."""
+    """Mean absolute error over pixels, fields and samples, physical units, native grid.
+    A physics head's spread is recalibrated on these moulds (PhysicsHead.calibrate_spread,
+    inside the tissue: the mould and tether pixels)."""
     if len(source) == 0:
         return float("nan")
     items = np.arange(len(source))
     inputs = np.asarray(source.ds["inputs"].isel(sample=source.indices).values, dtype=np.float32)
-    pred = run_generator(G, scaling, inputs, mode, device=device, symmetrise=symmetrise)
-    return float(np.abs(pred - source.native_fields(items)).mean())
+    pred, spread = run_model(G, scaling, inputs, mode, device=device, symmetrise=symmetrise,
+                             n_cells=source.n_cells)
+    truth = source.native_fields(items)
+    if spread is not None:
+        scaling.calibrate_spread(pred, spread, truth, inputs.astype(bool).any(axis=1))
+    return float(np.abs(pred - truth).mean())
+
+
+def output_map(cfg: TrainConfig, ds, train_idx, size: int):
+    """The map between physical fields and the network's outputs, fitted on the training
+    split: a FieldScaling (tanh head: min/max, symmetrised when augmenting so that sign flips
+    and swaps commute with it; or standard: each field / its RMS) or a PhysicsHead."""
+    if cfg.head == "physics":
+        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight)
+    if cfg.scaling == "standard":
+        rms = fit_physics_head(ds, train_idx).field_scale
+        return FieldScaling(-rms, rms)
+    scaling = compute_scaling(ds, train_idx, size)
+    return scaling.symmetrised() if cfg.augment else scaling
 
 
 def _build(cfg: TrainConfig, native: int, device):
@@ -239,9 +318,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
                 opt_d.load_state_dict(state["opt_d"])
             scaling, history, start = scaling_from_checkpoint(state), list(state["history"]), state["epoch"]
         else:
-            scaling, history, start = compute_scaling(dataset, train_idx, G.cfg.size), [], 0
-            if cfg.augment:  # sign flips and swaps must commute with the scaling
-                scaling = scaling.symmetrised()
+            scaling, history, start = output_map(cfg, dataset, train_idx, G.cfg.size), [], 0
         train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size)
         val_src = SampleSource(dataset, val_idx, None, native, preload=False)
         for epoch in range(start, cfg.epochs):
@@ -259,7 +336,9 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
                 x, y = train_src.batch(items)
                 if cfg.augment:
                     x, y = augment_batch(x, y, choices[items])
-                for k, v in _train_step(G, D, opt_g, opt_d, x.to(device), y.to(device), cfg).items():
+                n_cells = torch.as_tensor(train_src.n_cells[items], device=device)
+                for k, v in _train_step(G, D, opt_g, opt_d, x.to(device), y.to(device), cfg,
+                                        scaling, n_cells).items():
                     sums[k] = sums.get(k, 0.0) + v
                 n_batches += 1
             record = {"epoch": epoch + 1, **{k: v / n_batches for k, v in sums.items()}}
@@ -281,7 +360,8 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
 
 
 def _format_record(r: dict, epochs: int) -> str:
-    parts = [f"epoch {r['epoch']}/{epochs}", f"l1 {r['l1']:.4f}", f"g_loss {r['g_loss']:.4f}"]
+    parts = [f"epoch {r['epoch']}/{epochs}"] + [f"{k} {r[k]:.4f}" for k in ("l1", "mse", "nll")
+                                                   if k in r] + [f"g_loss {r['g_loss']:.4f}"]
     if "d_loss" in r:
         parts.append(f"d_loss {r['d_loss']:.4f}")
     if r.get("val_mae") is not None:

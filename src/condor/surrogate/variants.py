@@ -2,8 +2,8 @@
 TrainConfig, and the `surrogate:` section of the workflow config.
 
 A variant's settings are a flat dict: `model` (one of MODEL_KINDS) plus any of
-SETTING_KEYS. U-Net keys (base, depth, max_width, n_dropout, dropout) size the generator of
-"unet_gan"/"unet_l1" at the dataset's native resolution; "pix2pix" is the paper's fixed
+SETTING_KEYS. U-Net keys (base, depth, max_width, n_dropout, dropout, upsample) size the
+generator of "unet_gan"/"unet_l1"/"unet" at the dataset's native resolution; "pix2pix" is the paper's fixed
 256 px networks and takes no U-Net key.
 """
 
@@ -14,9 +14,10 @@ import re
 from .models import UNetConfig
 from .train import MODEL_KINDS, TrainConfig
 
-UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout")
+UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample")
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "lam", "adversarial_target", "seed", "val_every",
-              "max_val_samples", "prediction_mode", "num_threads", "augment", "symmetrise")
+              "max_val_samples", "prediction_mode", "num_threads", "augment", "symmetrise",
+              "head", "loss", "scaling", "loss_region", "nll_weight", "detach_spread")
 SETTING_KEYS = ("model",) + UNET_KEYS + TRAIN_KEYS
 VARIANT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")  # used in file names and wildcards
 

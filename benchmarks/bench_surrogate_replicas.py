@@ -1,0 +1,90 @@
+"""Replicas of a dataset's test moulds, for measuring the surrogate against the expected fields.
+
+Replica r of mould i (global seed S) is simulated with seed `condor.pipeline.simulation_seed(S, i)`
+for r = 0 (the dataset's own sample) and `default_rng([S, i, 1, r]).integers(2**62)` for r >= 1,
+the store's replica convention. Writes an .npz with `mould_ids` (M,), `fields` (M, R, 8, H, W)
+float32 (replica 0 from the store), `n_cells` (M,), `seeds` (M, R), `energy` (M, R) total energies.
+Resumable: finished moulds are kept in a per-mould cache beside the output.
+
+    PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --replicas 8 \
+        --out /work/data/surrogate/replicas.npz
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from pathlib import Path
+
+import numpy as np
+
+from condor.moulds import MouldParams, generate_mould
+from condor.pipeline import rasterise_result, simulation_seed
+from condor.scenes import Scene
+from condor.simulate import simulate
+from condor.store import open_dataset
+
+
+def replica_seed(seed: int, mould_id: int, replica: int) -> int:
+    if replica == 0:
+        return simulation_seed(seed, mould_id)
+    return int(np.random.default_rng([seed, mould_id, 1, replica]).integers(2 ** 62))
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--store", required=True)
+    ap.add_argument("--replicas", type=int, default=8)
+    ap.add_argument("--split", default="test")
+    ap.add_argument("--solver", default="hybrid")
+    ap.add_argument("--out", required=True)
+    args = ap.parse_args()
+
+    ds = open_dataset(args.store)
+    scene = Scene(**ds.attrs["scene"])
+    params = MouldParams(**ds.attrs["mould_params"])
+    seed = int(ds.attrs["seed"])
+    ids = np.flatnonzero(np.asarray(ds["split"].values).astype(str) == args.split)
+    cache = Path(args.out).with_suffix("")
+    cache.mkdir(parents=True, exist_ok=True)
+    for k, mould_id in enumerate(ids):  # replicas 1.. need only the mould's geometry
+        part = cache / f"{mould_id:06d}.npz"
+        if part.exists():
+            continue
+        mould = generate_mould(seed, int(mould_id), box=scene.box, params=params,
+                               area_fraction=scene.area_fraction, max_extent=scene.max_extent)
+        fields, seeds, energies = [], [], []
+        t0 = time.perf_counter()
+        for r in range(1, args.replicas):
+            s = replica_seed(seed, int(mould_id), r)
+            res = simulate(mould.polygon, mould.tethers, scene.depth, solver=args.solver, seed=s)
+            if res.status != "ok":
+                raise RuntimeError(f"mould {mould_id} replica {r}: {res.status}")
+            fields.append(rasterise_result(res, scene))
+            seeds.append(s)
+            energies.append(res.energy)
+        np.savez(part, fields=np.stack(fields), seeds=np.array(seeds, dtype=np.int64),
+                 energy=np.array(energies), n_cells=res.n_cells)
+        print(f"[{k + 1}/{len(ids)}] mould {mould_id}: {args.replicas - 1} replicas in "
+              f"{time.perf_counter() - t0:.1f} s", flush=True)
+    status = np.asarray(ds["status"].values).astype(str)[ids]
+    if not np.all(status == "ok"):
+        print(f"replicas 1.. done; replica 0 waits for the store ({np.sum(status != 'ok')} "
+              "test samples not ok yet)")
+        return
+    store_fields = np.asarray(ds["fields"].isel(sample=ids).values, dtype=np.float32)
+    parts = [np.load(cache / f"{m:06d}.npz") for m in ids]
+    n_cells = np.asarray(ds["n_cells"].values)[ids]
+    for m, p, n in zip(ids, parts, n_cells):
+        if int(p["n_cells"]) != int(n):
+            raise RuntimeError(f"mould {m}: replicas have {p['n_cells']} cells, store {n}")
+    fields = np.concatenate([store_fields[:, None], np.stack([p["fields"] for p in parts])], 1)
+    seeds = np.array([[replica_seed(seed, int(m), 0)] + list(p["seeds"]) for m, p in zip(ids, parts)])
+    energy = np.concatenate([np.asarray(ds["energy"].values)[ids][:, None],
+                             np.stack([p["energy"] for p in parts])], 1)
+    np.savez(args.out, mould_ids=ids, fields=fields, seeds=seeds, energy=energy, n_cells=n_cells)
+    print(f"wrote {args.out}")
+
+
+if __name__ == "__main__":
+    main()

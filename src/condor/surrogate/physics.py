@@ -1,0 +1,229 @@
+"""The physics the surrogate's output respects by construction, its spread head and loss.
+
+`PhysicsHead` maps the generator's 16 unbounded output channels, and the mould's cell count
+N_c, to the 8 fields and a per-pixel, per-field spread:
+
+- P = N_c * softmax over the grid of channel 0: P >= 0 and sum(P) = N_c exactly (every cell
+  is rasterised with unit weight and the moulds keep a margin from the box edge, so the
+  simulated P sums to N_c within 1e-6);
+- T = P * tau_0 * channel 1: a per-pixel mean tension per cell times the density (T -> 0
+  where there are no cells); tau_0 (the training set's mean tension per cell) sets its scale;
+- the orientation tensor S = [[Sx2, SxSy, SxSz], [SxSy, Sy2, SySz], [SxSz, SySz, Sz2]] =
+  P * Q with Q = (L L^T + eps I) / trace, L lower-triangular from channels 2-7 (diagonal
+  offset by 1 so that Q starts isotropic): Sx2 + Sy2 + Sz2 = P and S positive semidefinite,
+  exactly, as for the simulated fields (a kernel-weighted sum of s s^T over unit vectors s);
+- spread_f = s_f * (softplus(channel 8 + f) + floor): the standard deviation of one
+  simulation's field f around the expected field, per pixel (s_f: the field's RMS).
+
+Every expected field satisfies these relations (sums, traces, positivity are linear or convex
+constraints that survive averaging over seeds), so they cost no accuracy. The loss is the
+squared error of the mean, per field divided by s_f^2 (its minimiser is the conditional mean,
+the expected field, unlike L1's median), plus the Gaussian negative log-likelihood of the
+residual under the spread with the mean detached (so the spread never pulls the mean).
+
+N_c of a mould is its lattice site count (`n_cells_of_mould`); for a bare input image,
+`estimate_n_cells` counts the same FCC sites over the occupied pixels (docs/surrogate.md
+gives its measured error).
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import torch
+from torch.nn import functional as F
+
+from .data import FIELD_NAMES, PAIRED_FIELDS
+
+N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
+SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
+TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
+CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
+TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
+_IDX = {f: i for i, f in enumerate(FIELD_NAMES)}
+
+
+class PhysicsHead:
+    """Output map and loss of a surrogate with built-in physics (see the module docstring).
+
+    field_scale (8,): RMS of each field over the training split (pairs swapped by the
+    transpose share one value, so the loss commutes with every symmetry); tension_scale:
+    the training split's sum(T) / sum(P)."""
+
+    kind = "physics"
+    n_outputs = N_OUTPUTS
+
+    def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
+                 spread_factor=None):
+        self.field_scale = np.asarray(field_scale, dtype=np.float64)
+        self.tension_scale = float(tension_scale)
+        self.nll_weight = float(nll_weight)
+        # Per-field factor on the predicted spread, fitted on the validation split after
+        # training (calibrate_spread): the training residuals are those of moulds the model
+        # has seen, smaller than a new mould's.
+        self.spread_factor = np.ones(len(FIELD_NAMES)) if spread_factor is None else \
+            np.asarray(spread_factor, dtype=np.float64)
+        if self.field_scale.shape != (len(FIELD_NAMES),) or np.any(self.field_scale <= 0):
+            raise ValueError(f"field_scale must be {len(FIELD_NAMES)} positive values, got "
+                             f"{self.field_scale}")
+        if not (np.isfinite(self.tension_scale) and self.tension_scale != 0):
+            raise ValueError(f"tension_scale must be finite and non-zero, got {tension_scale}")
+
+    # the data pipeline hands targets through unchanged (physical units)
+    def scale(self, fields):
+        return fields
+
+    def unscale(self, fields):
+        return fields
+
+    def _scale_tensor(self, like: torch.Tensor) -> torch.Tensor:
+        return torch.as_tensor(self.field_scale, dtype=like.dtype, device=like.device)[None, :, None, None]
+
+    def decode(self, out: torch.Tensor, n_cells: torch.Tensor,
+               calibrated: bool = True) -> tuple[torch.Tensor, torch.Tensor]:
+        """out (B, 16, H, W), n_cells (B,) -> (fields (B, 8, H, W), spread (B, 8, H, W));
+        `calibrated` applies spread_factor (the loss trains the uncalibrated spread)."""
+        if out.shape[1] != N_OUTPUTS:
+            raise ValueError(f"physics head needs {N_OUTPUTS} channels, got {out.shape[1]}")
+        b, _, h, w = out.shape
+        n_cells = torch.as_tensor(n_cells, dtype=out.dtype, device=out.device).reshape(b, 1, 1)
+        density = n_cells * torch.softmax(out[:, 0].reshape(b, -1), dim=1).reshape(b, h, w)
+        tension = density * self.tension_scale * out[:, 1]
+        l11, l21, l22, l31, l32, l33 = (out[:, 2 + k] for k in range(6))
+        l11, l22, l33 = l11 + 1, l22 + 1, l33 + 1
+        qxx, qyy, qzz = l11 * l11, l21 * l21 + l22 * l22, l31 * l31 + l32 * l32 + l33 * l33
+        qxy, qxz, qyz = l11 * l21, l11 * l31, l21 * l31 + l22 * l32
+        weight = density / (qxx + qyy + qzz + 3 * TENSOR_EPS)
+        fields = torch.stack([density, tension, weight * (qxx + TENSOR_EPS),
+                              weight * (qyy + TENSOR_EPS), weight * (qzz + TENSOR_EPS),
+                              weight * qxy, weight * qxz, weight * qyz], dim=1)
+        spread = self._scale_tensor(out) * (F.softplus(out[:, 8:]) + SPREAD_FLOOR)
+        if calibrated:
+            spread = spread * torch.as_tensor(self.spread_factor, dtype=out.dtype,
+                                              device=out.device)[None, :, None, None]
+        return fields, spread
+
+    def loss(self, out: torch.Tensor, target: torch.Tensor, n_cells) -> tuple[torch.Tensor, dict]:
+        """Squared error of the mean / field_scale^2, plus nll_weight x the Gaussian NLL of
+        the (detached) residual under the spread; both averaged over pixels and fields."""
+        fields, spread = self.decode(out, n_cells, calibrated=False)
+        scale = self._scale_tensor(out)
+        mse = (((fields - target) / scale) ** 2).mean()
+        residual = (target - fields).detach()
+        z = residual / spread
+        nll = (0.5 * z * z + torch.log(spread / scale)).mean()
+        return mse + self.nll_weight * nll, {"mse": mse.item(), "nll": nll.item()}
+
+    def to_dict(self) -> dict:
+        return {"kind": self.kind, "field_scale": self.field_scale.tolist(),
+                "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
+                "spread_factor": self.spread_factor.tolist()}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "PhysicsHead":
+        return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
+                   d.get("spread_factor"))
+
+    def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
+        """Set spread_factor so that, per field, the central `level` interval fields -/+ z
+        spread covers `level` of the single-simulation values `truth` over the `mask` pixels
+        ((S, 8, H, W) arrays of held-out moulds, spread as predicted with the current factor;
+        mask (S, H, W) bool). Returns the new factor."""
+        from .calibration import z_of
+
+        z = np.abs(np.asarray(truth, np.float64) - fields) / np.asarray(spread, np.float64)
+        z = np.moveaxis(z, 1, 0)[:, np.asarray(mask, bool)]  # (8, pixels)
+        factor = np.quantile(z, level, axis=1) / z_of(level)
+        for a, b in PAIRED_FIELDS:  # one factor per pair, so that it commutes with symmetries
+            pair = [_IDX[a], _IDX[b]]
+            factor[pair] = np.quantile(z[pair].ravel(), level) / z_of(level)
+        self.spread_factor = self.spread_factor * np.where(np.isfinite(factor) & (factor > 0),
+                                                           factor, 1.0)
+        return self.spread_factor
+
+
+def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0) -> PhysicsHead:
+    """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
+    over all pixels (transpose pairs averaged) and sum(T) / sum(P)."""
+    indices = np.asarray(indices)
+    if len(indices) == 0:
+        raise ValueError("cannot fit a physics head on zero samples")
+    sq = np.zeros(len(FIELD_NAMES))
+    sums = np.zeros(len(FIELD_NAMES))
+    n = 0
+    for start in range(0, len(indices), chunk):
+        f = np.asarray(ds["fields"].isel(sample=indices[start:start + chunk]).values, dtype=np.float64)
+        sq += (f * f).sum(axis=(0, 2, 3))
+        sums += f.sum(axis=(0, 2, 3))
+        n += f.shape[0] * f.shape[2] * f.shape[3]
+    rms = np.sqrt(sq / n)
+    for a, b in PAIRED_FIELDS:
+        rms[[_IDX[a], _IDX[b]]] = 0.5 * (rms[_IDX[a]] + rms[_IDX[b]])
+    rms = np.where(rms > 0, rms, 1.0)
+    tension = sums[_IDX["T"]] / sums[_IDX["P"]]
+    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight)
+
+
+# --- the cell count N_c -----------------------------------------------------------------------
+
+def n_cells_of_mould(polygon, tethers, depth: float) -> int:
+    """N_c of a mould: its lattice site count (condor.lattice.build_lattice), exactly the
+    number of cells the simulation rasterises."""
+    from condor.lattice import build_lattice
+
+    return int(build_lattice(polygon, tethers, depth).n_cells)
+
+
+def fcc_sites_per_column(depth: float) -> int:
+    """FCC layers in a slab of `depth` l0 (condor.lattice: (001) layers a/2 apart from z=0)."""
+    from condor.lattice import HALF
+
+    return int(math.floor(depth / HALF + 1e-9)) + 1
+
+
+def estimate_n_cells(inputs: np.ndarray, pixel_size: float, depth: float) -> np.ndarray | float:
+    """N_c estimated from input channels (2, H, W) or (S, 2, H, W) (mould, tether; 0/1): the
+    FCC sites of condor.lattice.build_lattice (origin at the centre of the occupied pixels'
+    bounding box) whose (x, y) falls in an occupied pixel. Exact up to the pixelation of the
+    outline (measured error in docs/surrogate.md); prefer n_cells_of_mould when the geometry
+    is known."""
+    from condor.lattice import HALF
+
+    inputs = np.asarray(inputs)
+    single = inputs.ndim == 3
+    batch = inputs[None] if single else inputs
+    if batch.ndim != 4 or batch.shape[1] != 2:
+        raise ValueError(f"inputs must be (2, H, W) or (S, 2, H, W), got shape {inputs.shape}")
+    if not (np.isfinite(pixel_size) and pixel_size > 0 and np.isfinite(depth) and depth > 0):
+        raise ValueError(f"pixel_size ({pixel_size}) and depth ({depth}) must be positive")
+    n_layers = fcc_sites_per_column(depth)
+    out = np.zeros(len(batch))
+    for s, channels in enumerate(batch):
+        occupied = channels.astype(bool).any(axis=0)  # [y, x]
+        if not occupied.any():
+            continue
+        ys, xs = np.nonzero(occupied)
+        cx = 0.5 * (xs.min() + xs.max() + 1) * pixel_size
+        cy = 0.5 * (ys.min() + ys.max() + 1) * pixel_size
+        h, w = occupied.shape
+        p = np.arange(math.floor(-cx / HALF) - 1, math.ceil((w * pixel_size - cx) / HALF) + 2)
+        q = np.arange(math.floor(-cy / HALF) - 1, math.ceil((h * pixel_size - cy) / HALF) + 2)
+        pp, qq = np.meshgrid(p, q, indexing="ij")
+        col = np.floor((cx + pp * HALF) / pixel_size).astype(int)
+        row = np.floor((cy + qq * HALF) / pixel_size).astype(int)
+        valid = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+        hit = np.zeros_like(valid)
+        hit[valid] = occupied[row[valid], col[valid]]
+        # layer r holds the sites with p + q + r even
+        even = (pp + qq) % 2 == 0
+        n_even_layers, n_odd_layers = (n_layers + 1) // 2, n_layers // 2
+        out[s] = n_even_layers * np.count_nonzero(hit & even) + n_odd_layers * np.count_nonzero(hit & ~even)
+    return float(out[0]) if single else out
+
+
+def tissue_mask(inputs: torch.Tensor, reach: int = TISSUE_REACH_PX) -> torch.Tensor:
+    """(B, 2, H, W) 0/1 inputs -> (B, 1, H, W) float: the mould and tethers dilated by
+    `reach` pixels (where the fields are non-zero)."""
+    occupied = inputs.amax(dim=1, keepdim=True)
+    return F.max_pool2d(occupied, 2 * reach + 1, stride=1, padding=reach)

@@ -1,0 +1,224 @@
+"""The physics head: exact relations, the loss's minimiser (mean and spread), the cell count,
+symmetrised prediction, resumable training, the spread in predictions and their files, and the
+calibration measures."""
+
+import numpy as np
+import pytest
+import torch
+import xarray as xr
+from shapely.geometry import Polygon, box
+
+from condor.lattice import build_lattice
+from condor.moulds import generate_mould, save_json
+from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
+                                          tissue_pixels, z_of)
+from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
+from condor.surrogate.data import FIELD_NAMES, apply_symmetry, usable_samples
+from condor.surrogate.models import UNetConfig, UNetGenerator
+from condor.surrogate.physics import PhysicsHead, estimate_n_cells, n_cells_of_mould
+from condor.surrogate.predict import Predictor, predict, write_prediction
+from condor.surrogate.synthetic import synthetic_dataset
+from condor.surrogate.train import TrainConfig, train
+
+QUIET = lambda message: None
+I = {f: k for k, f in enumerate(FIELD_NAMES)}
+
+
+def _head():
+    return PhysicsHead(np.linspace(0.5, 1.5, 8), tension_scale=0.02)
+
+
+def test_decode_is_exact_for_any_output():
+    out = torch.randn(3, 16, 12, 12, dtype=torch.float64) * 3
+    n_cells = torch.tensor([100.0, 2345.0, 7.5], dtype=torch.float64)
+    fields, spread = _head().decode(out, n_cells)
+    p = fields[:, I["P"]]
+    assert torch.all(p > 0)
+    torch.testing.assert_close(p.sum(dim=(1, 2)), n_cells, rtol=1e-12, atol=0)
+    trace = fields[:, I["Sx2"]] + fields[:, I["Sy2"]] + fields[:, I["Sz2"]]
+    torch.testing.assert_close(trace, p, rtol=1e-12, atol=1e-15)
+    s = torch.stack([torch.stack([fields[:, I[a]] for a in row]) for row in
+                     (("Sx2", "SxSy", "SxSz"), ("SxSy", "Sy2", "SySz"), ("SxSz", "SySz", "Sz2"))])
+    eigenvalues = torch.linalg.eigvalsh(s.permute(2, 3, 4, 0, 1))
+    assert eigenvalues.min() >= -1e-12 * p.max()
+    assert torch.all(spread > 0)
+
+
+def test_loss_minimiser_is_the_mean_and_the_spread_the_std():
+    """Fit the raw outputs of one 4x4 image directly to skewed draws: the decoded tension
+    converges to the draws' mean (not their median) and the spread to their std."""
+    rng = np.random.default_rng(0)
+    head = PhysicsHead(np.ones(8), tension_scale=1.0)
+    n_cells = torch.tensor([16.0], dtype=torch.float64)
+    mean_t = np.linspace(0.5, 2.0, 16).reshape(4, 4)
+    draws = rng.exponential(mean_t, size=(1000, 4, 4))  # skewed: median = 0.69 mean
+    target = torch.zeros(len(draws), 8, 4, 4, dtype=torch.float64)
+    target[:, I["P"]] = 1.0  # 16 cells on 16 pixels
+    target[:, I["T"]] = torch.from_numpy(draws)
+    target[:, I["Sx2"]] = target[:, I["Sy2"]] = target[:, I["Sz2"]] = 1 / 3
+    out = torch.zeros(1, 16, 4, 4, dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.Adam([out], lr=0.05)
+    for step in range(800):  # full batch: the optimum is the sample's own mean and std
+        loss, _ = head.loss(out.expand(len(draws), -1, -1, -1), target, n_cells.expand(len(draws)))
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    with torch.no_grad():
+        fields, spread = head.decode(out, n_cells)
+    t = fields[0, I["T"]].numpy()
+    np.testing.assert_allclose(t, draws.mean(0), rtol=0.01)
+    assert np.all(np.abs(t - np.median(draws, 0)) > 0.15 * mean_t)  # not the median
+    np.testing.assert_allclose(spread[0, I["T"]].numpy(), draws.std(0), rtol=0.02)
+
+
+def test_cell_count_of_a_pixel_aligned_rectangle_is_exact():
+    pixel, depth = 0.5, 4.0
+    inputs = np.zeros((2, 40, 40), dtype=np.uint8)
+    inputs[0, 6:30, 4:33] = 1  # rows y 3..15 l0, columns x 2..16.5 l0
+    polygon = box(4 * pixel, 6 * pixel, 33 * pixel, 30 * pixel)
+    exact = build_lattice(polygon, np.zeros((0, 3)), depth).n_cells
+    assert n_cells_of_mould(polygon, np.zeros((0, 3)), depth) == exact
+    assert estimate_n_cells(inputs, pixel, depth) == exact
+    batch = estimate_n_cells(np.stack([inputs, inputs]), pixel, depth)
+    assert batch.shape == (2,) and np.all(batch == exact)
+    with pytest.raises(ValueError, match="pixel_size"):
+        estimate_n_cells(inputs, -1.0, depth)
+
+
+def test_cell_count_estimate_of_a_slanted_mould_is_close():
+    pixel, depth, n = 0.25, 2.0, 64
+    polygon = Polygon([(3.1, 2.2), (13.3, 4.9), (11.0, 13.7), (2.6, 10.4)])
+    centres = (np.arange(n) + 0.5) * pixel
+    x, y = np.meshgrid(centres, centres)
+    from shapely import contains_xy
+    inputs = np.stack([contains_xy(polygon, x, y), np.zeros_like(x, bool)]).astype(np.uint8)
+    exact = build_lattice(polygon, np.zeros((0, 3)), depth).n_cells
+    assert abs(estimate_n_cells(inputs, pixel, depth) / exact - 1) < 0.03
+
+
+@pytest.fixture(scope="module")
+def physics_ds():
+    ds = synthetic_dataset(12, 32, splits=("train",) * 8 + ("val", "test"))
+    ds.attrs["scene"] = {"depth": 2.0}  # recorded in the checkpoint, for estimate_n_cells
+    return ds
+
+
+PHYSICS = dict(model="unet", head="physics", loss="gaussian",
+               unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), batch_size=4,
+               lr=2e-3, seed=2, augment=True)
+
+
+def test_physics_training_resumes_bit_identically(physics_ds, tmp_path):
+    cfg = TrainConfig(**PHYSICS, epochs=2)
+    full = train(physics_ds, cfg, tmp_path / "full.pt", log=QUIET)
+    train(physics_ds, TrainConfig(**PHYSICS, epochs=1), tmp_path / "resumed.pt", log=QUIET)
+    resumed = train(physics_ds, cfg, tmp_path / "resumed.pt", log=QUIET)
+    a, b = (load_checkpoint(tmp_path / f)["generator"] for f in ("full.pt", "resumed.pt"))
+    assert all(torch.equal(a[k], b[k]) for k in a)
+    assert [h["mse"] for h in resumed] == [h["mse"] for h in full]
+    assert {"mse", "nll", "val_mae"} <= set(full[-1])
+    with pytest.raises(CheckpointMismatchError, match="head: checkpoint 'physics' vs now 'tanh'"):
+        train(physics_ds, TrainConfig(model="unet", unet=PHYSICS["unet"], epochs=2, batch_size=4,
+                                      lr=2e-3, seed=2, augment=True), tmp_path / "full.pt",
+              log=QUIET)
+
+
+def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_path):
+    path = tmp_path / "m.pt"
+    train(physics_ds, TrainConfig(**PHYSICS, epochs=1, symmetrise=True), path, log=QUIET)
+    test = usable_samples(physics_ds, "test")
+    inputs = physics_ds["inputs"].values[test].astype(np.float32)
+    n_cells = np.array([123.0])
+    predictor = Predictor(path)
+    assert predictor.needs_n_cells
+    p = predictor(inputs, n_cells=n_cells)
+    assert p.spread.shape == p.raw.shape and np.all(p.spread > 0)
+    np.testing.assert_allclose(p.raw[:, I["P"]].sum(axis=(1, 2)), n_cells, rtol=1e-5)
+    np.testing.assert_allclose(p.raw[:, I["Sx2"]] + p.raw[:, I["Sy2"]] + p.raw[:, I["Sz2"]],
+                               p.raw[:, I["P"]], rtol=1e-4, atol=1e-6)
+    np.testing.assert_array_equal(p.raw[:, I["SxSz"]], 0)  # z-flip symmetrised
+    # symmetrised: the prediction of a transformed mould is the transformed prediction
+    for k in (1, 2, 7):
+        gx, _ = apply_symmetry(k, inputs=inputs)
+        q = predictor(np.ascontiguousarray(gx), n_cells=n_cells)
+        np.testing.assert_allclose(q.raw, apply_symmetry(k, fields=p.raw)[1], atol=1e-5)
+        spread_k = np.abs(apply_symmetry(k, fields=p.spread)[1])
+        np.testing.assert_allclose(q.spread, spread_k, rtol=1e-4, atol=1e-7)
+    single = predict(path, inputs[0])  # N_c estimated from the pixels
+    assert single.n_cells == pytest.approx(predictor.estimate_n_cells(inputs[0]), rel=1e-5)
+    write_prediction(tmp_path / "p.zarr", predictor(inputs[0], n_cells=123), inputs[0], 0.5)
+    written = xr.open_zarr(tmp_path / "p.zarr")
+    assert written["spread"].dims == ("field", "y", "x")
+    assert float(written["raw"].sel(field="P").sum()) == pytest.approx(123, rel=1e-5)
+    write_prediction(tmp_path / "p.png", single, inputs[0])
+    assert (tmp_path / "p.png").stat().st_size > 0
+    # a mould JSON: N_c is its exact lattice count at the training depth
+    mould = generate_mould(3, 1, box=predictor.box)
+    save_json(mould, tmp_path / "m.json")
+    _, from_file = predictor.predict_file(tmp_path / "m.json")
+    exact = build_lattice(mould.polygon, mould.tethers, 2.0).n_cells
+    assert from_file.raw[I["P"]].sum() == pytest.approx(exact, rel=1e-5)
+
+
+def test_old_tanh_checkpoints_still_predict_without_spread(physics_ds, tmp_path):
+    path = tmp_path / "old.pt"
+    train(physics_ds, TrainConfig(model="unet_l1", unet=UNetConfig.for_size(32, base=8),
+                                  epochs=1, batch_size=4), path, log=QUIET)
+    state = load_checkpoint(path)
+    for key in ("upsample", "output"):  # written before these settings existed
+        state["generator_config"].pop(key)
+    torch.save(state, path)
+    p = predict(path, physics_ds["inputs"].values[:2].astype(np.float32))
+    assert p.spread is None and p.raw.shape == (2, 8, 32, 32)
+
+
+def test_config_rejects_inconsistent_heads():
+    with pytest.raises(ValueError, match="gaussian.*physics"):
+        TrainConfig(model="unet", loss="gaussian")
+    with pytest.raises(ValueError, match="needs model 'unet'"):
+        TrainConfig(model="unet_l1", head="physics", loss="gaussian")
+    with pytest.raises(ValueError, match="upsample 'cubic'"):
+        UNetConfig(size=32, depth=3, upsample="cubic")
+
+
+def test_upsampling_without_transpose_has_no_checkerboard():
+    """A constant feature map through an untrained decoder: the transposed convolution's
+    uneven overlap imprints a period-2 pattern, resizing does not."""
+    torch.manual_seed(0)
+    amplitude = {}
+    for mode in ("transpose", "resize", "bilinear"):
+        g = UNetGenerator(UNetConfig.for_size(32, base=8, upsample=mode, output="linear"),
+                          torch.Generator().manual_seed(0)).eval()
+        with torch.no_grad():
+            y = g(torch.ones(1, 2, 32, 32)).numpy()[0, :, 4:-4, 4:-4]
+        amplitude[mode] = checkerboard(y).mean() / np.abs(y).mean()
+    assert amplitude["transpose"] > 10 * max(amplitude["resize"], amplitude["bilinear"])
+
+
+def test_interval_coverage_and_spread_agreement_on_gaussian_draws():
+    rng = np.random.default_rng(1)
+    mean = rng.normal(size=(6, 2, 8, 8))
+    std = rng.uniform(0.2, 2.0, size=(6, 1, 1, 1)) * rng.uniform(0.5, 1.5, size=(6, 2, 8, 8))
+    replicas = mean[:, None] + std[:, None] * rng.normal(size=(6, 400, 2, 8, 8))
+    mask = np.zeros((6, 8, 8), bool)
+    mask[:, 2:7, 1:6] = True
+    coverage = interval_coverage(mean, std, replicas, mask)
+    for level, per_mould in coverage.items():
+        np.testing.assert_allclose(per_mould, level, atol=0.02)
+    assert interval_coverage(mean, 0.5 * std, replicas, mask)[0.9].mean() < 0.65
+    agree = spread_agreement(std, replicas, mask)
+    assert agree["r"] > 0.99 and agree["ratio"] == pytest.approx(1, abs=0.03)
+    assert np.all(agree["pixel_r"] > 0.9)
+    assert z_of(0.9) == pytest.approx(1.6449, abs=1e-4)
+    inputs = np.zeros((1, 2, 4, 4))
+    inputs[0, 0, 1, 1] = inputs[0, 1, 2, 2] = 1
+    assert tissue_pixels(inputs).sum() == 2
+
+
+def test_checkerboard_measures_the_period_two_pattern():
+    yy, xx = np.mgrid[0:16, 0:16]
+    pattern = 0.3 * (-1.0) ** (xx + yy)
+    smooth = np.sin(xx / 5.0) + yy / 16
+    assert checkerboard(pattern) == pytest.approx(0.3)
+    assert checkerboard(smooth + pattern) == pytest.approx(0.3, abs=0.01)
+    assert checkerboard(smooth) < 0.01
