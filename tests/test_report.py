@@ -125,7 +125,7 @@ def statistics_table(n=12, bias=0.002, r=0.99):
 
 def fake_inputs(tmp_path):
     d = tmp_path
-    for name in ("gallery", "samples", "chart", "conv"):
+    for name in ("gallery", "samples", "chart", "conv", "spread"):
         png(d / f"{name}.png", seed=len(name))
     pd.DataFrame({"sample": range(4), "mould": range(4), "split": ["train", "train", "val", "test"],
                   "status": ["ok", "ok", "ok", "folded: 2% inverted"],
@@ -133,6 +133,10 @@ def fake_inputs(tmp_path):
     pd.DataFrame({"regime": ["cyclic"], "share": [1.0], "paper_share": [0.2]}).to_csv(
         d / "regimes.csv", index=False)
     accuracy_table().to_csv(d / "accuracy.csv", index=False)
+    pd.DataFrame({"method": ["unet"], "n_moulds": [12], "coverage_50": [0.6], "coverage_50_lo": [0.55],
+                  "coverage_50_hi": [0.65], "coverage_90": [0.9], "coverage_90_lo": [0.87],
+                  "coverage_90_hi": [0.93], "spread_r": [0.4], "spread_ratio": [1.4],
+                  "spread_pixel_r": [0.5]}).to_csv(d / "calibration.csv", index=False)
     statistics_table().to_csv(d / "statistics.csv", index=False)
     pd.DataFrame({"mould": [4, 4], "rung": ["dataset solver", "anneal 1000 + FIRE"],
                   "budget": [np.nan, 1000.0], "runs": [8, 3], "energy_per_cell": [0.01, 0.0101],
@@ -159,6 +163,7 @@ def fake_inputs(tmp_path):
               "gallery": d / "gallery.png", "samples": d / "samples.png",
               "accuracy": d / "accuracy.csv", "statistics": d / "statistics.csv",
               "accuracy_chart": d / "chart.png", "ladder": d / "ladder.csv",
+              "calibration": d / "calibration.csv", "spread_chart": d / "spread.png",
               "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
               "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
               "evaluations": [figures], "histories": [d / "unet_history.csv"]}
@@ -172,7 +177,8 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     page = out.read_text()
     p = parse(page)
     assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#dataset"]
-    assert len(p.images) == 5  # chart, convergence, evaluation figure, gallery, samples
+    assert len(p.images) == 6  # chart, spread, convergence, evaluation figure, gallery, samples
+    assert "90% interval covers" in page
     assert all(src.startswith("data:image/png;base64,") for src in p.images)
     assert "src=\"http" not in page and "href=\"http" not in page  # self-contained
     summary = page[page.index('id="summary"'):page.index('id="accuracy"')]

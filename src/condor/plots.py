@@ -92,28 +92,23 @@ def mould_picture(mould, path) -> Path:
 
 # --- fields -----------------------------------------------------------------------------------
 
-def field_panels(rows, path, title: str = "", field_names=FIELD_NAMES, dpi: int = 100) -> Path:
-    """One row per entry of `rows` = (label, inputs (2, H, W) or None, fields (F, H, W)):
-    the mould (grey: mould, black: tethers) and each field with its colour bar. y up."""
+def image_grid(rows, path, title: str = "", dpi: int = 100, cmaps=None) -> Path:
+    """Rows of labelled images: `rows` = [(row label, [(title, image (H, W)), ...]), ...], each
+    image with its colour bar, y up. `cmaps` maps a title to a colour map (default viridis)."""
     rows = list(rows)
     if not rows:
         raise ValueError("no rows to draw")
     plt = pyplot()
-    with_inputs = any(r[1] is not None for r in rows)
-    ncols = len(field_names) + int(with_inputs)
+    ncols = max(len(images) for _, images in rows)
     fig, axes = plt.subplots(len(rows), ncols, figsize=(1.65 * ncols, 1.75 * len(rows) + 0.4),
                              squeeze=False)
-    for ax_row, (label, inputs, fields) in zip(axes, rows):
-        panels = list(ax_row)
-        if with_inputs:
-            ax = panels.pop(0)
-            if inputs is not None:
-                ax.imshow(inputs[0] + 2 * inputs[1], origin="lower", cmap="Greys", vmin=0, vmax=2)
-            ax.set_title(label, fontsize=7)
-        for k, (ax, name, image) in enumerate(zip(panels, field_names, fields)):
-            im = ax.imshow(image, origin="lower", cmap="viridis")
-            ax.set_title(name if with_inputs or k else f"{label}: {name}", fontsize=7)
+    for ax_row, (label, images) in zip(axes, rows):
+        for k, (ax, (name, image)) in enumerate(zip(ax_row, images)):
+            im = ax.imshow(image, origin="lower", cmap=(cmaps or {}).get(name, "viridis"))
+            ax.set_title(f"{label}: {name}" if k == 0 and label else name, fontsize=7)
             fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
+        for ax in ax_row[len(images):]:
+            ax.axis("off")
     for ax in axes.flat:
         ax.set_xticks([])
         ax.set_yticks([])
@@ -121,6 +116,16 @@ def field_panels(rows, path, title: str = "", field_names=FIELD_NAMES, dpi: int 
         fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return save(fig, path, dpi=dpi)
+
+
+def field_panels(rows, path, title: str = "", field_names=FIELD_NAMES, dpi: int = 100) -> Path:
+    """One row per entry of `rows` = (label, inputs (2, H, W) or None, fields (F, H, W)):
+    the mould (grey: mould, black: tethers) and each field."""
+    grid = []
+    for label, inputs, fields in rows:
+        images = [] if inputs is None else [("mould", inputs[0] + 2 * inputs[1])]
+        grid.append((label, images + list(zip(field_names, fields))))
+    return image_grid(grid, path, title, dpi, cmaps={"mould": "Greys"})
 
 
 # --- studies ------------------------------------------------------------------------------------

@@ -164,6 +164,8 @@ REPORT_INPUTS = {
     "accuracy": "every method against the expected fields (results/evaluation/accuracy.csv)",
     "statistics": "r, ceiling and bias per method and statistic (results/evaluation/statistics.csv)",
     "accuracy_chart": "cost per mould against error (PNG)",
+    "calibration": "each surrogate's spread map against the replicas' scatter (CSV)",
+    "spread_chart": "the reproducibility map beside the replicas' scatter (PNG)",
     "ladder": "the anneal ladder (CSV)",
     "convergence": "scene convergence study (CSV)",
     "convergence_chart": "scene convergence chart (PNG)",
@@ -338,7 +340,35 @@ def _accuracy_section(inp) -> Section:
         folded("Whole-mould statistics of every method", [
             table(statistics_table(statistics, m), f"{m}: r against the replica means, "
                   "ceiling, bias, n, the paper's r.") for m in methods]),
+        *_reproducibility_blocks(inp),
     ])
+
+
+def _reproducibility_blocks(inp) -> list[str]:
+    """The surrogate's reproducibility map: calibration against the replicas, and the maps."""
+    calibration = _csv(inp, "calibration") if Path(inp["calibration"]).stat().st_size > 1 \
+        else pd.DataFrame()
+    blocks = [paragraph("Will this mould give the same tissue twice? A surrogate with a spread "
+                        "head predicts, per pixel and field, how far one simulation scatters "
+                        "about the expected fields. Checked against the replicas of the test "
+                        "moulds: the share of replica pixels inside the tissue that fall in "
+                        "the predicted central 50% and 90% intervals (well calibrated: 0.5 and "
+                        "0.9), and the r over moulds between predicted and replica scatter.")]
+    if "coverage_90" in calibration.columns:
+        shown = pd.DataFrame({
+            "method": calibration["method"], "moulds": calibration["n_moulds"],
+            "50% interval covers [95%]": [_interval(r.coverage_50, r.coverage_50_lo, r.coverage_50_hi)
+                                          for r in calibration.itertuples()],
+            "90% interval covers [95%]": [_interval(r.coverage_90, r.coverage_90_lo, r.coverage_90_hi)
+                                          for r in calibration.itertuples()],
+            "r of mould spread": calibration["spread_r"],
+            "predicted / replica spread": calibration["spread_ratio"]})
+        blocks.append(table(shown, "Calibration of the predicted spread against the replicas.",
+                            digits=3))
+    blocks.append(figure(inp["spread_chart"], "The reproducibility map: predicted T and Sx2, "
+                                              "their predicted spread, and the standard "
+                                              "deviation of the replicas, on test moulds."))
+    return blocks
 
 
 def _simulator_section(inp) -> Section:

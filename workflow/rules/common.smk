@@ -54,6 +54,8 @@ def report_inputs(wildcards):
         "accuracy": rules.accuracy.output.accuracy,
         "statistics": rules.accuracy.output.statistics,
         "accuracy_chart": rules.accuracy.output.chart,
+        "calibration": rules.accuracy.output.calibration,
+        "spread_chart": rules.accuracy.output.spread_chart,
         "ladder": rules.ladder.output[0],
         "convergence": rules.convergence.output.table,
         "convergence_chart": rules.convergence.output.chart,

@@ -38,11 +38,13 @@ rule accuracy:
     output:
         accuracy=f"{EVALUATION}/accuracy.csv",
         statistics=f"{EVALUATION}/statistics.csv",
+        calibration=f"{EVALUATION}/calibration.csv",
         chart=report(
             f"{EVALUATION}/figures/cost_accuracy.png",
             caption="../report/cost_accuracy.rst",
             category="Cost against accuracy",
         ),
+        spread_chart=f"{EVALUATION}/figures/spread.png",
     params:
         variants=list(VARIANTS),
         settings=report_settings("moulds"),

@@ -79,17 +79,24 @@ def _simulation_answers(ensemble, sweep_npzs) -> list:
     return answers
 
 
-def _predictor_answers(store, ensemble, checkpoints: dict) -> list:
-    """Each surrogate (one torch thread, one mould per call) and each baseline."""
+def _predictor_answers(store, ensemble, checkpoints: dict) -> tuple[list, list]:
+    """Each surrogate (one torch thread, one mould per call, given the mould's cell count) and
+    each baseline; and the calibration row of each surrogate with a spread map."""
     inputs = ensemble.inputs.astype(np.float32)
-    answers = []
+    answers, calibration = [], []
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
         for name, path in checkpoints.items():
             predictor = Predictor(path, device="cpu")
-            raw, cpu = accuracy_study.time_predictor(lambda x: predictor(x).raw, inputs)
+            raw, cpu = accuracy_study.time_predictor(
+                lambda k: predictor(inputs[k:k + 1], n_cells=ensemble.n_cells[k:k + 1]).raw,
+                len(inputs))
             answers.append(accuracy_study.Answer(name, "surrogate", raw, cpu, predicted=True))
+            spread = predictor(inputs, n_cells=ensemble.n_cells).spread
+            if spread is not None:
+                calibration.append((accuracy_study.calibration_row(name, raw, spread, ensemble),
+                                    raw, spread))
     finally:
         torch.set_num_threads(threads)
     ds = open_store(store)
@@ -97,22 +104,29 @@ def _predictor_answers(store, ensemble, checkpoints: dict) -> list:
     for baseline in fit_baselines(np.asarray(train["inputs"].values, np.float32),
                                   np.asarray(train["fields"].values, np.float32),
                                   dataset_pixel_size(ds)):
-        raw, cpu = accuracy_study.time_predictor(baseline.predict, inputs)
+        raw, cpu = accuracy_study.time_predictor(lambda k: baseline.predict(inputs[k:k + 1]),
+                                                 len(inputs))
         answers.append(accuracy_study.Answer(f"baseline {baseline.name}", "baseline", raw, cpu,
                                              predicted=True))
-    return answers
+    return answers, calibration
 
 
 def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy, out_statistics,
-             out_chart) -> tuple[pd.DataFrame, pd.DataFrame]:
-    """Every method against the expected fields of the study's test moulds (module docs)."""
+             out_calibration, out_chart, out_spread_chart) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """Every method against the expected fields of the study's test moulds (module docs), and
+    each surrogate's spread map against the replicas' scatter (a table, and the maps of the
+    first surrogate on three test moulds)."""
     ensemble = reference_ensemble(store, study_moulds(config))
     log.info("reference ensemble: %d test moulds x %d replicas", len(ensemble.moulds),
              ensemble.n_replicas)
-    answers = _simulation_answers(ensemble, sweep_npzs) + \
-        _predictor_answers(store, ensemble, checkpoints)
+    predicted, calibration = _predictor_answers(store, ensemble, checkpoints)
+    answers = _simulation_answers(ensemble, sweep_npzs) + predicted
     table, statistics = accuracy_study.accuracy_tables(ensemble, answers, seed=config.seed)
-    for path, frame in ((out_accuracy, table), (out_statistics, statistics)):
+    spread_maps(ensemble, calibration, out_spread_chart)
+    calibration = pd.DataFrame([row for row, _, _ in calibration],
+                               columns=None if calibration else ["method", "n_moulds"])
+    for path, frame in ((out_accuracy, table), (out_statistics, statistics),
+                        (out_calibration, calibration)):
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frame.to_csv(path, index=False)
     plots.accuracy_chart(table, out_chart, title=(
@@ -121,6 +135,27 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     log.info("\n%s", table[["method", "cpu_s_per_mould", "field_error", "field_error_lo",
                             "field_error_hi"]].to_string(index=False))
     return table, statistics
+
+
+def spread_maps(ensemble, calibration: list, out_png, n: int = 3) -> None:
+    """For the first surrogate with a spread head, on `n` test moulds: the predicted T and Sx2,
+    their predicted spread and the replicas' standard deviation (raw units)."""
+    rows = []
+    if calibration:
+        (row, raw, spread), replica_std = calibration[0], ensemble.raw.std(axis=1, ddof=1)
+        for m in range(min(n, len(raw))):
+            images = []
+            for k, name in ((1, "T"), (2, "Sx2")):
+                images += [(f"{name} predicted", raw[m, k]),
+                           (f"{name} spread, predicted", spread[m, k]),
+                           (f"{name} std of {ensemble.n_replicas} replicas", replica_std[m, k])]
+            rows.append((f"mould {int(ensemble.moulds[m])}", images))
+        title = (f"{row['method']}: the reproducibility map (predicted spread of one simulation) "
+                 "against the replicas' scatter")
+    else:
+        rows.append(("no surrogate with a spread head", [("expected T", ensemble.raw[0, :, 1].mean(0))]))
+        title = "no reproducibility map"
+    plots.image_grid(rows, out_png, title)
 
 
 def ladder(config: Config, store, moulds_jsons, out_csv) -> pd.DataFrame:

@@ -28,6 +28,7 @@ import pandas as pd
 from condor import estimators as est
 from condor.fields import FIELD_NAMES, STATISTICS, normalise
 from condor.metrics import normalise_predicted, paper_r, statistics_frame
+from condor.surrogate.calibration import interval_coverage, spread_agreement, tissue_pixels
 
 ACCURACY_COLUMNS = ("method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
                     "field_error_hi", "field_error_plain", "field_error_plain_lo",
@@ -50,22 +51,40 @@ class Answer:
     predicted: bool = False
 
 
-def time_predictor(predict_raw, inputs: np.ndarray, repeats: int = 3) -> tuple[np.ndarray, np.ndarray]:
-    """`predict_raw` (inputs (1, 2, H, W) -> raw (1, 8, H, W)) one mould at a time: the raw
+def time_predictor(predict_raw, n_moulds: int, repeats: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """`predict_raw(k)` (the raw answer (1, 8, H, W) for mould k) one mould at a time: the raw
     answers (M, 8, H, W) and the median CPU seconds of `repeats` calls per mould (after one
     untimed warm-up call)."""
     raws, seconds = [], []
-    for k in range(len(inputs)):
-        x = inputs[k:k + 1]
-        raw = predict_raw(x)
+    for k in range(n_moulds):
+        raw = predict_raw(k)
         times = []
         for _ in range(repeats):
             t0 = time.process_time()
-            raw = predict_raw(x)
+            raw = predict_raw(k)
             times.append(time.process_time() - t0)
         raws.append(np.asarray(raw, dtype=np.float32)[0])
         seconds.append(float(np.median(times)))
     return np.stack(raws), np.array(seconds)
+
+
+def calibration_row(method: str, mean_raw: np.ndarray, spread_raw: np.ndarray, ensemble,
+                    seed: int = 0) -> dict:
+    """How a predicted spread map (raw units, (M, 8, H, W)) agrees with the replicas' scatter
+    inside the tissue: coverage of the central 50% and 90% intervals around the predicted
+    mean (median over moulds, with the pooled fraction and a bootstrap interval) and the r over
+    moulds between predicted and replica RMS spread."""
+    mask = tissue_pixels(ensemble.inputs)
+    coverage = interval_coverage(mean_raw, spread_raw, ensemble.raw, mask)
+    agreement = spread_agreement(spread_raw, ensemble.raw, mask)
+    row = {"method": method, "n_moulds": int(len(mask))}
+    for level, per_mould in coverage.items():
+        value, lo, hi = est.bootstrap_interval(per_mould, np.mean, seed=seed)
+        row.update({f"coverage_{int(level * 100)}": value, f"coverage_{int(level * 100)}_lo": lo,
+                    f"coverage_{int(level * 100)}_hi": hi})
+    row.update(spread_r=agreement["r"], spread_ratio=agreement["ratio"],
+               spread_pixel_r=float(np.median(agreement["pixel_r"])))
+    return row
 
 
 def _normalised(answer: Answer, n_cells: np.ndarray) -> np.ndarray:

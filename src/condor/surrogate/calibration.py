@@ -10,8 +10,9 @@ replica pixels inside the tissue that fall in the interval should be q.
 
 from __future__ import annotations
 
+from statistics import NormalDist
+
 import numpy as np
-from scipy.stats import norm
 
 LEVELS = (0.5, 0.9)
 
@@ -20,7 +21,7 @@ def z_of(level: float) -> float:
     """Half-width, in standard deviations, of the central `level` interval of a Gaussian."""
     if not 0 < level < 1:
         raise ValueError(f"interval level must be in (0, 1), got {level}")
-    return float(norm.ppf(0.5 + level / 2))
+    return float(NormalDist().inv_cdf(0.5 + level / 2))
 
 
 def tissue_pixels(inputs: np.ndarray) -> np.ndarray:
