@@ -1,0 +1,351 @@
+"""Confirm searched designs with the simulator: predicted against simulated objective.
+
+`select_for_confirmation` picks the designs to simulate: the best distinct designs and a
+random sample of the others, stratified over the predicted objective (one draw per
+equal-count stratum) so that the rank correlation measures how the surrogate orders the range
+of designs the search saw, not only the seed noise among near-equal top designs.
+
+`simulate_designs` simulates each with replicas (condor.simulate.simulate, seeds by the
+replica convention, `replica_seeds`) and computes the simulated objective from the
+replica-mean normalised fields (the expected organisation), plus the spread of the
+per-replica objective. `baseline_objectives` does the same for a set of already simulated
+moulds (e.g. the dataset's random test moulds). `agreement` and `design_summary` report the
+Spearman rank correlation and bias between predicted and simulated objective (with bootstrap
+intervals and the replicas' own noise ceiling) and the improvement of the designs over the
+best baseline mould. Everything returns pandas DataFrames; nothing is drawn.
+"""
+
+from __future__ import annotations
+
+import sys
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from tqdm.auto import tqdm
+
+from condor.fields import normalise
+from condor.moulds import Mould, input_channels
+
+from .objectives import Objective
+from .search import SearchResult
+
+
+def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
+    """Simulation seeds of replicas 0..replicas-1 of mould `mould_id` under global seed
+    `seed`: replica 0 is condor.pipeline.simulation_seed (the dataset's own sample), replica
+    r >= 1 is default_rng([seed, mould_id, 1, r]).integers(2**62) (the store's convention)."""
+    from condor.pipeline import simulation_seed
+
+    if isinstance(replicas, bool) or not isinstance(replicas, (int, np.integer)) or replicas < 1:
+        raise ValueError(f"replicas = {replicas!r} must be a positive integer")
+    seeds = [simulation_seed(int(seed), int(mould_id))]
+    for r in range(1, replicas):
+        seeds.append(int(np.random.default_rng([int(seed), int(mould_id), 1, r]).integers(2**62)))
+    return seeds
+
+
+# --------------------------------------------------------------------------- selection
+
+
+def select_for_confirmation(result: SearchResult, n_top: int = 5, n_random: int = 10,
+                            seed: int = 0, min_difference: float = 0.02) -> pd.DataFrame:
+    """Rows of result.designs to simulate, with a `role` column ("top" or "random").
+
+    top: the best-ranked distinct feasible designs whose rasters differ from every design
+    already picked in at least `min_difference` of the pixels either occupies (near-copies
+    confirm nothing new). random: from the remaining distinct designs with a defined
+    objective, one uniform draw in each of `n_random` equal-count strata of the predicted
+    objective (default_rng([seed, 1])).
+    """
+    for name, value in (("n_top", n_top), ("n_random", n_random)):
+        if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
+            raise ValueError(f"{name} = {value!r} must be a non-negative integer")
+    candidates = result.ranked(distinct=True)
+    candidates = candidates[np.isfinite(candidates["objective"].to_numpy(dtype=float))]
+    pixels = result.pixels
+    picked, rasters = [], []
+    for row in candidates[candidates["feasible"]].itertuples():
+        if len(picked) >= n_top:
+            break
+        occupied = input_channels(result.mould(row.design), pixels).any(axis=0)
+        if all(_difference(occupied, other) >= min_difference for other in rasters):
+            picked.append(row.design)
+            rasters.append(occupied)
+    rest = candidates[~candidates["design"].isin(picked)].sort_values("objective")
+    chosen_random = []
+    if n_random and len(rest):
+        rng = np.random.default_rng([int(seed), 1])
+        strata = np.array_split(np.arange(len(rest)), min(n_random, len(rest)))
+        chosen_random = [int(rest["design"].iloc[rng.choice(s)]) for s in strata if len(s)]
+    table = pd.concat([
+        candidates.set_index("design").loc[picked].reset_index().assign(role="top"),
+        candidates.set_index("design").loc[chosen_random].reset_index().assign(role="random"),
+    ], ignore_index=True)
+    return table[["design", "role"] + [c for c in table.columns if c not in ("design", "role")]]
+
+
+def _difference(a: np.ndarray, b: np.ndarray) -> float:
+    union = np.count_nonzero(a | b)
+    return np.count_nonzero(a ^ b) / union if union else 0.0
+
+
+# --------------------------------------------------------------------------- simulation
+
+
+@dataclass
+class SimulatedDesigns:
+    """Simulations of a list of moulds.
+
+    table: one row per mould: mould_id, n_replicas, n_ok, simulated objective and quantities
+      from the replica-mean normalised fields, objective_std (standard deviation of the
+      per-replica objective, ddof 1), seconds (solver CPU seconds, summed).
+    replicas: one row per (mould_id, replica): seed, status, n_cells, seconds, objective and
+      quantities of that replica alone.
+    mean_fields: (n, 8, H, W) replica-mean normalised fields (NaN where no replica is ok).
+    """
+
+    table: pd.DataFrame
+    replicas: pd.DataFrame
+    mean_fields: np.ndarray
+
+
+def _simulate_one(task):
+    """One replica (top level, so that a process pool can run it)."""
+    from condor.pipeline import rasterise_result
+    from condor.simulate import simulate
+
+    mould, scene, solver, budget, seed = task
+    result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
+                      seed=seed)
+    fields = rasterise_result(result, scene) if result.status == "ok" else None
+    if fields is not None and not np.all(np.isfinite(fields)):
+        return None, result.n_cells, "non-finite fields", result.seconds
+    return fields, result.n_cells, result.status, result.seconds
+
+
+def simulate_designs(objective: Objective, moulds: list[Mould], scene, replicas: int = 3,
+                     seed: int = 0, seeds: list[list[int]] | None = None,
+                     solver: str = "hybrid", budget: float | None = None, map_fn=map,
+                     progress: bool | None = None) -> SimulatedDesigns:
+    """Simulate every mould `replicas` times and score the replica-mean normalised fields.
+
+    seeds: explicit simulation seeds per mould (a list of lists); default
+        replica_seeds(seed, mould.mould_id, replicas).
+    map_fn: how to run the replicas, e.g. a concurrent.futures executor's `map` (default:
+        serially). progress: a tqdm bar on stderr; None = when stderr is a terminal.
+    """
+    moulds = list(moulds)
+    if seeds is None:
+        seeds = [replica_seeds(seed, m.mould_id, replicas) for m in moulds]
+    elif len(seeds) != len(moulds):
+        raise ValueError(f"seeds has {len(seeds)} lists for {len(moulds)} moulds")
+    tasks = [(m, scene, solver, budget, int(s)) for m, mould_seeds in zip(moulds, seeds)
+             for s in mould_seeds]
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+    with tqdm(total=len(tasks), desc="confirm (simulations)", unit="sim", disable=not show,
+              file=sys.stderr) as bar:
+        outcomes = []
+        for outcome in map_fn(_simulate_one, tasks):
+            outcomes.append(outcome)
+            bar.update(1)
+    rows, replica_rows, means = [], [], []
+    k = 0
+    shape = (8, scene.pixels, scene.pixels)
+    for mould, mould_seeds in zip(moulds, seeds):
+        normalised, seconds = [], 0.0
+        for r, s in enumerate(mould_seeds):
+            fields, n_cells, status, secs = outcomes[k]
+            k += 1
+            seconds += secs
+            row = {"mould_id": mould.mould_id, "replica": r, "seed": int(s), "status": status,
+                   "n_cells": int(n_cells), "seconds": secs}
+            if fields is not None:
+                normalised.append(normalise(fields.astype(np.float64), n_cells))
+                row.update(objective.evaluate(normalised[-1]).iloc[0].to_dict())
+            replica_rows.append(row)
+        mean = np.mean(normalised, axis=0) if normalised else np.full(shape, np.nan)
+        means.append(mean)
+        row = {"mould_id": mould.mould_id, "n_replicas": len(mould_seeds),
+               "n_ok": len(normalised)}
+        row.update(objective.evaluate(mean).iloc[0].to_dict())
+        per_replica = [objective.evaluate(f)["objective"].iloc[0] for f in normalised]
+        row["objective_std"] = float(np.std(per_replica, ddof=1)) if len(per_replica) > 1 \
+            else float("nan")
+        row["seconds"] = seconds
+        rows.append(row)
+    return SimulatedDesigns(pd.DataFrame(rows), pd.DataFrame(replica_rows), np.array(means))
+
+
+def baseline_objectives(objective: Objective, fields: np.ndarray, n_cells,
+                        mould_ids=None) -> pd.DataFrame:
+    """The simulated objective of already simulated moulds (e.g. the random test moulds):
+    fields (M, 8, H, W) or (M, R, 8, H, W) raw (as stored), n_cells (M,). One row per
+    mould: mould_id, n_replicas, objective and quantities of the replica-mean normalised
+    fields."""
+    fields = np.asarray(fields, dtype=np.float64)
+    if fields.ndim == 4:
+        fields = fields[:, None]
+    if fields.ndim != 5 or fields.shape[2] != 8:
+        raise ValueError(f"fields must be (M, 8, H, W) or (M, R, 8, H, W), got {fields.shape}")
+    n_cells = np.asarray(n_cells, dtype=np.float64).reshape(-1)
+    if n_cells.shape != (fields.shape[0],):
+        raise ValueError(f"n_cells has shape {n_cells.shape}, expected ({fields.shape[0]},)")
+    mean = normalise(fields, np.repeat(n_cells[:, None], fields.shape[1], axis=1)).mean(axis=1)
+    table = objective.evaluate(mean)
+    ids = np.arange(len(mean)) if mould_ids is None else np.asarray(mould_ids)
+    table.insert(0, "n_replicas", fields.shape[1])
+    table.insert(0, "mould_id", ids)
+    return table
+
+
+def dataset_baseline(objective: Objective, ds, split: str = "test") -> pd.DataFrame:
+    """baseline_objectives of the ok samples of one split of a dataset store opened with
+    xarray (variables fields, n_cells, status, split; condor.store's layout)."""
+    status = np.asarray(ds["status"].values).astype(str)
+    keep = (status == "ok") & (np.asarray(ds["split"].values).astype(str) == split)
+    index = np.flatnonzero(keep)
+    if not index.size:
+        raise ValueError(f"the dataset has no simulated ('ok') {split!r} moulds")
+    sample = ds["sample"].values[index] if "sample" in ds.coords else index
+    return baseline_objectives(objective, ds["fields"].values[index],
+                               ds["n_cells"].values[index], sample)
+
+
+# --------------------------------------------------------------------------- agreement
+
+
+def spearman(a, b) -> float:
+    """Spearman rank correlation (average ranks for ties); NaN for fewer than 3 pairs."""
+    a, b = pd.Series(np.asarray(a, float)), pd.Series(np.asarray(b, float))
+    if len(a) < 3 or a.nunique() < 2 or b.nunique() < 2:
+        return float("nan")
+    return float(np.corrcoef(a.rank().to_numpy(), b.rank().to_numpy())[0, 1])
+
+
+def agreement(predicted, simulated, n_boot: int = 2000, seed: int = 0,
+              level: float = 0.95) -> dict:
+    """Predicted against simulated objective over n designs: spearman (with a percentile
+    bootstrap interval over designs), pearson, bias = mean(predicted - simulated) (with its
+    interval), median_difference, relative_bias = median(predicted / simulated - 1) (NaN unless
+    every simulated value is positive)."""
+    p, s = np.asarray(predicted, float), np.asarray(simulated, float)
+    keep = np.isfinite(p) & np.isfinite(s)
+    p, s = p[keep], s[keep]
+    n = len(p)
+    out = {"n": n, "spearman": spearman(p, s),
+           "pearson": float(np.corrcoef(p, s)[0, 1]) if n >= 3 else float("nan"),
+           "bias": float(np.mean(p - s)) if n else float("nan"),
+           "median_difference": float(np.median(p - s)) if n else float("nan"),
+           "relative_bias": float(np.median(p / s - 1)) if n and np.all(s > 0) else float("nan")}
+    low_q, high_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
+    rho_boot, bias_boot = [], []
+    if n >= 3:
+        rng = np.random.default_rng([int(seed), 2])
+        for _ in range(n_boot):
+            i = rng.integers(0, n, n)
+            rho_boot.append(spearman(p[i], s[i]))
+            bias_boot.append(np.mean(p[i] - s[i]))
+    for name, boot in (("spearman", rho_boot), ("bias", bias_boot)):
+        boot = np.asarray(boot, float)
+        boot = boot[np.isfinite(boot)]
+        out[f"{name}_low"], out[f"{name}_high"] = (
+            (float(np.percentile(boot, low_q)), float(np.percentile(boot, high_q)))
+            if boot.size else (float("nan"), float("nan")))
+    return out
+
+
+def replica_ceiling(replicas: pd.DataFrame, column: str = "objective") -> float:
+    """The noise ceiling of the rank correlation: the mean over replicas r of Spearman between
+    replica r's objective and the mean of the other replicas' (designs with all replicas ok).
+    What one simulation achieves against the expected organisation; NaN below 2 replicas."""
+    wide = replicas.pivot(index="mould_id", columns="replica", values=column).dropna()
+    if wide.shape[1] < 2 or len(wide) < 3:
+        return float("nan")
+    values = wide.to_numpy()
+    rhos = [spearman(values[:, r], np.delete(values, r, axis=1).mean(axis=1))
+            for r in range(values.shape[1])]
+    return float(np.nanmean(rhos))
+
+
+def confirmation_table(selection: pd.DataFrame, simulated: SimulatedDesigns) -> pd.DataFrame:
+    """One row per confirmed design: design, role, predicted_* (the search's columns) and
+    simulated_* (replica-mean) objective and quantities, simulated objective_std, n_ok."""
+    quantities = [c for c in simulated.table.columns
+                  if c not in ("mould_id", "n_replicas", "n_ok", "objective_std", "seconds")]
+    predicted = selection.rename(columns={c: f"predicted_{c}" for c in quantities
+                                          if c in selection.columns})
+    sim = simulated.table.rename(columns={c: f"simulated_{c}" for c in quantities})
+    sim = sim.rename(columns={"objective_std": "simulated_objective_std",
+                              "seconds": "simulation_seconds"})
+    table = predicted.merge(sim, left_on="design", right_on="mould_id", how="left")
+    return table.drop(columns=["mould_id"])
+
+
+def design_summary(table: pd.DataFrame, baseline: pd.DataFrame | None = None,
+                   replicas: pd.DataFrame | None = None, n_boot: int = 2000,
+                   seed: int = 0) -> pd.DataFrame:
+    """One row: agreement of predicted and simulated objective over the confirmed designs
+    (`confirmation_table`), the replicas' noise ceiling of the rank correlation, the best
+    confirmed design (by simulated objective) and the top predicted one, and, with a
+    baseline (`baseline_objectives`), the best baseline mould and the improvements
+    best_simulated - best_baseline and top_predicted_simulated - best_baseline."""
+    row = agreement(table["predicted_objective"], table["simulated_objective"], n_boot, seed)
+    row["ceiling_spearman"] = replica_ceiling(replicas) if replicas is not None else float("nan")
+    simulated = table["simulated_objective"].to_numpy(dtype=float)
+    defined = np.isfinite(simulated)
+    if defined.any():
+        best = int(np.nanargmax(np.where(defined, simulated, -np.inf)))
+        row["best_design"] = int(table["design"].iloc[best])
+        row["best_simulated"] = float(simulated[best])
+        row["best_predicted"] = float(table["predicted_objective"].iloc[best])
+    top = int(np.argmax(table["predicted_objective"].to_numpy(dtype=float)))
+    row["top_predicted_design"] = int(table["design"].iloc[top])
+    row["top_predicted_objective"] = float(table["predicted_objective"].iloc[top])
+    row["top_predicted_simulated"] = float(simulated[top])
+    if baseline is not None and len(baseline):
+        values = baseline["objective"].to_numpy(dtype=float)
+        b = int(np.nanargmax(values))
+        row["n_baseline"] = int(np.isfinite(values).sum())
+        row["best_baseline_mould"] = int(baseline["mould_id"].iloc[b])
+        row["best_baseline"] = float(values[b])
+        row["median_baseline"] = float(np.nanmedian(values))
+        row["improvement"] = row.get("best_simulated", float("nan")) - row["best_baseline"]
+        row["improvement_top"] = row["top_predicted_simulated"] - row["best_baseline"]
+    return pd.DataFrame([row])
+
+
+@dataclass
+class Confirmation:
+    """What `confirm` returns: the per-design table, the one-row summary, the simulations."""
+
+    table: pd.DataFrame
+    summary: pd.DataFrame
+    simulated: SimulatedDesigns
+
+
+def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
+            replicas: int = 3, baseline: pd.DataFrame | None = None,
+            solver: str = "hybrid", budget: float | None = None, seed: int | None = None,
+            map_fn=map, progress: bool | None = None) -> Confirmation:
+    """select_for_confirmation + simulate_designs + confirmation_table + design_summary.
+
+    Replica seeds follow `replica_seeds(seed, design, r)` with `seed` the search's seed unless
+    given (designs are numbered by evaluation, so their ids are distinct).
+    """
+    seed = result.seed if seed is None else int(seed)
+    if scene.pixels != result.pixels or abs(scene.box - result.space.box) > 1e-9 * scene.box:
+        raise ValueError(f"scene {scene.name!r} ({scene.box:g} l0, {scene.pixels} px) is not the "
+                         f"search's ({result.space.box:g} l0, {result.pixels} px)")
+    selection = select_for_confirmation(result, n_top, n_random, seed)
+    moulds = result.moulds(selection["design"])
+    simulated = simulate_designs(result.objective, moulds, scene, replicas, seed, solver=solver,
+                                 budget=budget, map_fn=map_fn, progress=progress)
+    table = confirmation_table(selection, simulated)
+    summary = design_summary(table, baseline, simulated.replicas, seed=seed)
+    return Confirmation(table, summary, simulated)
+
+
+__all__ = ["replica_seeds", "select_for_confirmation", "simulate_designs", "SimulatedDesigns",
+           "baseline_objectives", "dataset_baseline", "spearman", "agreement",
+           "replica_ceiling", "confirmation_table", "design_summary", "Confirmation", "confirm"]
