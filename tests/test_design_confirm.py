@@ -7,9 +7,9 @@ import pytest
 from scipy.stats import spearmanr
 
 from condor.design import (agreement, baseline_objectives, confirm, dataset_baseline,
-                           default_space, design_summary, parse_objective, replica_ceiling,
-                           replica_seeds, search, select_for_confirmation, simulate_designs,
-                           spearman)
+                           default_space, design_summary, design_table, parse_objective,
+                           replica_ceiling, replica_seeds, search, select_for_confirmation,
+                           simulate_designs, spearman)
 from condor.design.analytic import AnalyticPredictor
 from condor.fields import normalise
 from condor.pipeline import simulation_seed
@@ -166,5 +166,12 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     assert (table["n_ok"] == 1).all()
     assert summary["n"] == 3
     assert summary["improvement"] == pytest.approx(table["simulated_objective"].max())
+    written = design_table(result, confirmation, n=4)
+    assert set(table["design"]) <= set(written["design"])
+    assert set(result.ranked()["design"].head(4)) <= set(written["design"])
+    assert written["score"].is_monotonic_decreasing
+    listed_only = written[written["role"] == "ranked"]
+    assert listed_only["simulated_objective"].isna().all()
+    assert design_table(result, n=2)["role"].tolist() == ["ranked", "ranked"]
     with pytest.raises(ValueError, match="scene 'default'"):
         confirm(result, get_scene("default"))

@@ -8,7 +8,8 @@ the surrogate, and confirmation by simulation. See docs/design.md.
 """
 
 from .confirm import (Confirmation, SimulatedDesigns, agreement, baseline_objectives, confirm,
-                      confirmation_table, dataset_baseline, design_summary, replica_ceiling,
+                      confirmation_table, dataset_baseline, design_summary, design_table,
+                      replica_ceiling,
                       replica_seeds, select_for_confirmation, simulate_designs, spearman)
 from .objectives import (EmptyRegionError, InfeasibleConstraintError, Objective, ObjectiveError,
                          Quantity, Region, UnknownObjectiveError, parse_objective)
@@ -18,7 +19,8 @@ from .space import DesignSpace, default_space, symmetry_group
 
 __all__ = [
     "Confirmation", "SimulatedDesigns", "agreement", "baseline_objectives", "confirm",
-    "confirmation_table", "dataset_baseline", "design_summary", "replica_ceiling",
+    "confirmation_table", "dataset_baseline", "design_summary", "design_table",
+    "replica_ceiling",
     "replica_seeds", "select_for_confirmation", "simulate_designs", "spearman",
     "EmptyRegionError", "InfeasibleConstraintError", "Objective", "ObjectiveError", "Quantity",
     "Region", "UnknownObjectiveError", "parse_objective", "DesignPrediction",

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from condor.scenes import SIGMA_L0
+from condor.surrogate.baselines import gaussian_blur
 
 
 @dataclass
@@ -50,8 +51,6 @@ class AnalyticPredictor:
         self.calls = 0  # how many batches it was asked to predict
 
     def __call__(self, inputs) -> AnalyticPrediction:
-        from condor.surrogate.baselines import gaussian_blur
-
         inputs = np.asarray(inputs, dtype=np.float64)
         if inputs.ndim != 4 or inputs.shape[1:] != (2, self.native, self.native):
             raise ValueError(f"inputs must be (S, 2, {self.native}, {self.native}), got "

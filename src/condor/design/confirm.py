@@ -346,6 +346,26 @@ def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
     return Confirmation(table, summary, simulated)
 
 
-__all__ = ["replica_seeds", "select_for_confirmation", "simulate_designs", "SimulatedDesigns",
-           "baseline_objectives", "dataset_baseline", "spearman", "agreement",
-           "replica_ceiling", "confirmation_table", "design_summary", "Confirmation", "confirm"]
+
+def design_table(result: SearchResult, confirmation: Confirmation | None = None,
+                 n: int | None = 10) -> pd.DataFrame:
+    """The table `condor design` writes: the `n` best distinct designs (all when None) and
+    every confirmed design, best predicted first, with predicted_* columns (the search's
+    objective, score and quantities), simulated_* columns where confirmed (NaN elsewhere)
+    and `role` ("top", "random" or "ranked": listed but not simulated)."""
+    ranked = result.ranked(distinct=True)
+    chosen = ranked if n is None else ranked.head(n)
+    if confirmation is not None:
+        chosen = ranked[ranked["design"].isin(set(chosen["design"])
+                                              | set(confirmation.table["design"]))]
+    quantities = ["objective", "feasible", "violation"] + [q.label for q in
+                                                           result.objective.quantities]
+    table = chosen.rename(columns={c: f"predicted_{c}" for c in quantities})
+    if confirmation is None:
+        return table.assign(role="ranked").reset_index(drop=True)
+    simulated = confirmation.table[["design", "role"] + [
+        c for c in confirmation.table.columns if c.startswith("simulated_")
+        or c in ("n_replicas", "n_ok", "simulation_seconds")]]
+    table = table.merge(simulated, on="design", how="left")
+    table["role"] = table["role"].fillna("ranked")
+    return table

@@ -179,6 +179,7 @@ class DesignSpace:
         n_vertices = step * math.ceil(self.vertices / step)
         theta = self.symmetry_angle + 2 * math.pi * np.arange(n_vertices) / n_vertices
         self._cache.update(kind=kind, order=order, maps=maps, theta=theta,
+                           directions=np.stack([np.cos(theta), np.sin(theta)], axis=1),
                            basis=_shape_basis(maps, self.n_modes, theta) * self.shape_scale)
 
     @classmethod
@@ -246,12 +247,12 @@ class DesignSpace:
     def mould(self, vector, mould_id: int = 0, seed: int = 0) -> Mould:
         return self.decode(vector, mould_id, seed).mould
 
-    def _outline(self, coefficients: np.ndarray, shrink: float):
-        """Footprint vertices (V, 2) in l0 with the symmetry origin at (0, 0), area exact."""
-        log_r = self._cache["basis"] @ (shrink * coefficients)
-        radius = np.exp(log_r - log_r.max())  # scale is fixed below; avoid overflow
-        theta = self._cache["theta"]
-        xy = np.stack([radius * np.cos(theta), radius * np.sin(theta)], axis=1)
+    def _outline(self, log_radius: np.ndarray, shrink: float):
+        """Footprint vertices (V, 2) in l0 for the log-radius wave shrunk by t = `shrink`,
+        symmetry origin at (0, 0), area exactly area_fraction of the box."""
+        scaled = shrink * log_radius
+        radius = np.exp(scaled - scaled.max())  # scale is fixed below; avoid overflow
+        xy = radius[:, None] * self._cache["directions"]
         x, y = xy[:, 0], xy[:, 1]
         area = 0.5 * abs(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1)))
         return xy * math.sqrt(self.area_fraction * self.box**2 / area)
@@ -266,19 +267,29 @@ class DesignSpace:
         return isinstance(core, Polygon) and not core.is_empty
 
     def _footprint(self, coefficients: np.ndarray):
-        """(polygon in box coordinates, origin, shrink t)."""
-        def ok(t, check_neck=True):
-            xy = self._outline(coefficients, t)
-            return self._extent_ok(xy) and (not check_neck or self._neck_ok(xy))
-
-        shrink = 1.0
-        if not ok(1.0):
-            low, high = 0.0, 1.0  # a circle (t = 0) always passes
+        """(polygon in box coordinates, origin, shrink t). The extent is cheap to test
+        (numpy), the neck is not (a shapely buffer): bisect on the extent first, then, only
+        if the neck fails there, on both."""
+        def largest(t_high, ok):
+            if ok(t_high):
+                return t_high
+            low, high = 0.0, t_high  # a circle (t = 0) always passes
             for _ in range(14):
                 mid = 0.5 * (low + high)
                 low, high = (mid, high) if ok(mid) else (low, mid)
-            shrink = low
-        xy = self._outline(coefficients, shrink)
+            return low
+
+        log_radius = self._cache["basis"] @ coefficients
+
+        def extent_ok(t):
+            return self._extent_ok(self._outline(log_radius, t))
+
+        def both_ok(t):
+            xy = self._outline(log_radius, t)
+            return self._extent_ok(xy) and self._neck_ok(xy)
+
+        shrink = largest(largest(1.0, extent_ok), both_ok)
+        xy = self._outline(log_radius, shrink)
         shift = self.box / 2 - 0.5 * (xy.min(axis=0) + xy.max(axis=0))
         return Polygon(xy + shift), shift, shrink
 
