@@ -1,0 +1,196 @@
+"""Accuracy against the expected organisation: estimators over replicas (pure numpy).
+
+A CONDOR equilibrium is a random draw: the same mould simulated with another seed forms other
+orientation domains. The truth of any accuracy figure is therefore the *expected* fields mu of
+a mould (the mean over infinitely many replicas), estimated by the mean of R replicas, and the
+finite-replica noise is removed from every error:
+
+    E |m - mean_R|^2 = |m - mu|^2 + sigma^2 / R          (m independent of the replicas)
+
+so  |m - mean_R|^2 - s^2 / R  (s^2 the unbiased replica variance) is an unbiased estimate of
+|m - mu|^2. Squared errors are averaged over every element of a mould's array (fields, pixels);
+`per_field=True` keeps the first element axis (the field channel) apart.
+
+Shapes: a method's answers are (M, ...) for M moulds; replicas are (M, R, ...) with R >= 2.
+Every figure has a bootstrap interval over moulds (`bootstrap_interval`); a whole-mould
+statistic's Pearson r comes with its n, its interval and the ceiling a perfect predictor of the
+expected statistic reaches against one simulation (`statistic_agreement`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+# Fewer moulds than this make a Pearson r uninformative (r = +-1 at n = 2 whatever the data).
+MIN_MOULDS_FOR_R = 10
+BOOTSTRAP_SAMPLES = 2000
+LEVEL = 0.95
+
+
+@dataclass(frozen=True)
+class SquaredError:
+    """Per-mould squared errors (M,) or (M, F): `plain` against the replica mean, `corrected`
+    with the finite-replica noise removed (unbiased for the error against the expected fields;
+    it can be slightly negative for a method closer to mu than the noise resolves)."""
+
+    plain: np.ndarray
+    corrected: np.ndarray
+
+
+def as_replicas(replicas, min_replicas: int = 2) -> np.ndarray:
+    """`replicas` as a float64 array (M, R, ...); ValueError when R < min_replicas or NaN."""
+    array = np.asarray(replicas, dtype=np.float64)
+    if array.ndim < 2:
+        raise ValueError(f"replicas must have shape (moulds, replicas, ...), got {array.shape}")
+    if array.shape[1] < min_replicas:
+        raise ValueError(f"need at least {min_replicas} replicas per mould, got {array.shape[1]}")
+    if not np.all(np.isfinite(array)):
+        raise ValueError("replicas contain NaN or inf")
+    return array
+
+
+def _reduce(x: np.ndarray, per_field: bool) -> np.ndarray:
+    """Mean over every axis after the mould axis (after the first element axis if per_field)."""
+    first = 2 if per_field else 1
+    return x.mean(axis=tuple(range(first, x.ndim))) if x.ndim > first else x
+
+
+def replica_mean(replicas) -> np.ndarray:
+    """The estimate of the expected fields, (M, ...)."""
+    return as_replicas(replicas, 1).mean(axis=1)
+
+
+def replica_variance(replicas) -> np.ndarray:
+    """Unbiased per-element variance of one replica about the expected fields, (M, ...)."""
+    return as_replicas(replicas).var(axis=1, ddof=1)
+
+
+def mse_against_expected(method, replicas, per_field: bool = False) -> SquaredError:
+    """Squared error of `method` (M, ...) against the expected fields of `replicas` (M, R, ...).
+    The method must be independent of these replicas (another seed, solver or a predictor)."""
+    reps = as_replicas(replicas)
+    answer = np.asarray(method, dtype=np.float64)
+    if answer.shape != reps.shape[:1] + reps.shape[2:]:
+        raise ValueError(f"method answers {answer.shape} do not match replicas {reps.shape}")
+    plain = _reduce((answer - reps.mean(axis=1)) ** 2, per_field)
+    noise = _reduce(reps.var(axis=1, ddof=1), per_field) / reps.shape[1]
+    return SquaredError(plain, plain - noise)
+
+
+def noise_ceiling(replicas, per_field: bool = False) -> np.ndarray:
+    """Per-mould expected squared error of one simulation against the expected fields: the
+    replica variance sigma^2 averaged over elements, (M,) or (M, F)."""
+    return _reduce(replica_variance(replicas), per_field)
+
+
+def held_out_error(replicas, k: int, per_field: bool = False) -> SquaredError:
+    """Squared error of the mean of `k` simulations against the expected fields, measured on
+    disjoint replicas: each rotation takes k consecutive replicas as the method and the other
+    R - k (>= 2) as the truth; the R rotations are averaged (each is unbiased). Its corrected
+    value estimates sigma^2 / k: "one simulation" is k = 1."""
+    reps = as_replicas(replicas)
+    n = reps.shape[1]
+    if not 1 <= k <= n - 2:
+        raise ValueError(f"held-out error of {k} simulations needs k >= 1 and {k} + 2 <= "
+                         f"{n} replicas")
+    plain, corrected = [], []
+    for start in range(n):
+        chosen = (start + np.arange(k)) % n
+        rest = np.setdiff1d(np.arange(n), chosen)
+        err = mse_against_expected(reps[:, chosen].mean(axis=1), reps[:, rest], per_field)
+        plain.append(err.plain)
+        corrected.append(err.corrected)
+    return SquaredError(np.mean(plain, axis=0), np.mean(corrected, axis=0))
+
+
+def ensemble_distance(a, b, per_field: bool = False) -> SquaredError:
+    """Squared distance between the expected fields of two ensembles of the same moulds,
+    a (M, Ra, ...) and b (M, Rb, ...): |mean_a - mean_b|^2 - s_a^2/Ra - s_b^2/Rb is unbiased
+    for |mu_a - mu_b|^2 (0 when both sample the same states)."""
+    ra, rb = as_replicas(a), as_replicas(b)
+    if ra.shape[:1] + ra.shape[2:] != rb.shape[:1] + rb.shape[2:]:
+        raise ValueError(f"ensembles {ra.shape} and {rb.shape} are not of the same moulds")
+    plain = _reduce((ra.mean(axis=1) - rb.mean(axis=1)) ** 2, per_field)
+    noise = (_reduce(ra.var(axis=1, ddof=1), per_field) / ra.shape[1]
+             + _reduce(rb.var(axis=1, ddof=1), per_field) / rb.shape[1])
+    return SquaredError(plain, plain - noise)
+
+
+def root_mean(per_mould) -> float:
+    """sqrt of the mean over moulds, floored at 0 (an RMS error from per-mould squared errors)."""
+    return float(np.sqrt(max(float(np.mean(per_mould)), 0.0)))
+
+
+def bootstrap_interval(per_mould, statistic=root_mean, n_boot: int = BOOTSTRAP_SAMPLES,
+                       level: float = LEVEL, seed: int = 0) -> tuple[float, float, float]:
+    """(estimate, lo, hi): `statistic` of the per-mould values (M, ...) and its percentile
+    bootstrap interval over moulds resampled with replacement (deterministic for `seed`)."""
+    values = np.asarray(per_mould, dtype=np.float64)
+    if values.shape[0] < 1:
+        raise ValueError("bootstrap needs at least one mould")
+    estimate = float(statistic(values))
+    rng = np.random.default_rng([seed, values.shape[0]])
+    draws = rng.integers(0, values.shape[0], size=(n_boot, values.shape[0]))
+    boot = np.array([statistic(values[d]) for d in draws], dtype=np.float64)
+    boot = boot[np.isfinite(boot)]
+    if boot.size == 0:
+        return estimate, float("nan"), float("nan")
+    tail = 100 * (1 - level) / 2
+    lo, hi = np.percentile(boot, [tail, 100 - tail])
+    return estimate, float(lo), float(hi)
+
+
+def pearson_r(x, y) -> float:
+    """Pearson r in float64; NaN when either side is constant or n < 2."""
+    x = np.asarray(x, dtype=np.float64)
+    y = np.asarray(y, dtype=np.float64)
+    if x.size < 2:
+        return float("nan")
+    dx, dy = x - x.mean(), y - y.mean()
+    den = np.sqrt((dx * dx).sum() * (dy * dy).sum())
+    return float((dx * dy).sum() / den) if den > 0 else float("nan")
+
+
+def reliability(replicas) -> float:
+    """Expected correlation between two simulations of the same moulds for a whole-mould
+    statistic (replicas (M, R)): the intraclass correlation from the one-way ANOVA, i.e. the
+    between-mould variance of mu over that plus the within-mould variance sigma^2."""
+    reps = as_replicas(replicas)
+    if reps.ndim != 2:
+        raise ValueError(f"a statistic's replicas are (moulds, replicas), got {reps.shape}")
+    within = reps.var(axis=1, ddof=1).mean()
+    between = reps.mean(axis=1).var(ddof=1) - within / reps.shape[1]
+    total = between + within
+    return float(np.clip(between / total, 0.0, 1.0)) if total > 0 else float("nan")
+
+
+def _pairs_r(pairs: np.ndarray) -> float:
+    return pearson_r(pairs[:, 0], pairs[:, 1])
+
+
+def statistic_agreement(method, replicas, n_boot: int = BOOTSTRAP_SAMPLES,
+                        seed: int = 0) -> dict:
+    """How a method's whole-mould statistic (M,) agrees with the replicas' (M, R).
+
+    r: Pearson r against the replica mean, with r_lo, r_hi (bootstrap over moulds);
+    r_ceiling: the r a perfect predictor of the expected statistic reaches against one
+    simulation, sqrt(reliability); bias: median over moulds of method / replica mean - 1, with
+    bias_lo, bias_hi; n: moulds; informative: n >= MIN_MOULDS_FOR_R (with fewer, r says little).
+    """
+    reps = as_replicas(replicas)
+    answer = np.asarray(method, dtype=np.float64)
+    if answer.shape != reps.shape[:1] or reps.ndim != 2:
+        raise ValueError(f"method statistic {answer.shape} does not match replicas {reps.shape}")
+    mean = reps.mean(axis=1)
+    pairs = np.stack([answer, mean], axis=1)
+    r, r_lo, r_hi = bootstrap_interval(pairs, _pairs_r, n_boot, seed=seed)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        ratio = answer / mean - 1.0
+    bias, bias_lo, bias_hi = bootstrap_interval(ratio, np.median, n_boot, seed=seed)
+    ceiling = reliability(reps)
+    return {"n": int(len(mean)), "r": r, "r_lo": r_lo, "r_hi": r_hi,
+            "r_ceiling": float(np.sqrt(ceiling)) if np.isfinite(ceiling) else float("nan"),
+            "bias": bias, "bias_lo": bias_lo, "bias_hi": bias_hi,
+            "informative": bool(len(mean) >= MIN_MOULDS_FOR_R)}

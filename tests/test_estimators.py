@@ -1,0 +1,103 @@
+"""condor.estimators on synthetic draws with a known mean and variance."""
+
+import numpy as np
+import pytest
+
+from condor import estimators as est
+
+
+def draws(rng, moulds=150, replicas=4, shape=(3, 6, 6), sigma=0.5):
+    """Known expected fields mu (M, ...) and replicas mu + sigma * N(0, 1) (M, R, ...)."""
+    mu = rng.normal(size=(moulds, *shape))
+    noise = rng.normal(size=(moulds, replicas, *shape)) * sigma
+    return mu, mu[:, None] + noise
+
+
+def test_corrected_error_recovers_the_known_error_and_plain_does_not():
+    rng = np.random.default_rng(1)
+    mu, reps = draws(rng, sigma=0.5)
+    offset = 0.2 * rng.normal(size=mu.shape[1:])
+    truth = float((offset ** 2).mean())  # |m - mu|^2 per mould, the same for every mould
+    err = est.mse_against_expected(mu + offset, reps)
+    _, lo, hi = est.bootstrap_interval(err.corrected, np.mean)
+    assert lo <= truth <= hi
+    # The plain form carries sigma^2 / R = 0.0625 on top of 0.04: outside its interval.
+    _, plain_lo, _ = est.bootstrap_interval(err.plain, np.mean)
+    assert plain_lo > truth + 0.5 * 0.25 / 4
+
+
+def test_noise_ceiling_and_held_out_means_of_k_simulations():
+    rng = np.random.default_rng(2)
+    sigma = 0.3
+    _, reps = draws(rng, replicas=8, sigma=sigma)
+    for values, expected in ((est.noise_ceiling(reps), sigma ** 2),
+                             (est.held_out_error(reps, 1).corrected, sigma ** 2),
+                             (est.held_out_error(reps, 2).corrected, sigma ** 2 / 2),
+                             (est.held_out_error(reps, 4).corrected, sigma ** 2 / 4)):
+        _, lo, hi = est.bootstrap_interval(values, np.mean)
+        assert lo <= expected <= hi, (expected, lo, hi)
+    with pytest.raises(ValueError, match="replicas"):
+        est.held_out_error(reps, 7)
+
+
+def test_per_field_keeps_channels_apart():
+    rng = np.random.default_rng(3)
+    mu, reps = draws(rng, shape=(2, 5, 5), sigma=0.4)
+    offset = np.zeros(mu.shape[1:])
+    offset[1] = 0.5  # only channel 1 is wrong
+    err = est.mse_against_expected(mu + offset, reps, per_field=True)
+    assert err.corrected.shape == (mu.shape[0], 2)
+    means = err.corrected.mean(axis=0)
+    assert abs(means[0]) < 0.01 and abs(means[1] - 0.25) < 0.02
+
+
+def test_ensemble_distance_is_zero_for_the_same_states_and_finds_a_shift():
+    rng = np.random.default_rng(4)
+    mu, a = draws(rng, replicas=3, sigma=0.6)
+    b = mu[:, None] + 0.6 * rng.normal(size=(mu.shape[0], 5, *mu.shape[1:]))
+    same = est.ensemble_distance(a, b)
+    _, lo, hi = est.bootstrap_interval(same.corrected, np.mean)
+    assert lo <= 0.0 <= hi
+    assert same.plain.mean() > 0.1  # uncorrected, noise looks like a difference
+    shifted = est.ensemble_distance(a, b + 0.3)
+    _, lo, hi = est.bootstrap_interval(shifted.corrected, np.mean)
+    assert lo <= 0.09 <= hi
+
+
+def test_statistic_agreement_ceiling_bias_and_small_n():
+    rng = np.random.default_rng(5)
+    moulds, tau, sigma = 400, 1.0, 0.5
+    mu = 10 + tau * rng.normal(size=moulds)
+    reps = mu[:, None] + sigma * rng.normal(size=(moulds, 6))
+    expected_ceiling = np.sqrt(tau ** 2 / (tau ** 2 + sigma ** 2))
+    perfect = est.statistic_agreement(mu, reps)
+    assert abs(perfect["r_ceiling"] - expected_ceiling) < 0.02
+    # The ceiling is what a perfect predictor scores against one fresh simulation.
+    one = mu + sigma * rng.normal(size=moulds)
+    assert abs(est.pearson_r(mu, one) - perfect["r_ceiling"]) < 0.04
+    assert perfect["r_lo"] <= perfect["r"] <= perfect["r_hi"]
+    biased = est.statistic_agreement(1.05 * reps.mean(axis=1), reps)
+    assert biased["bias"] == pytest.approx(0.05)
+    assert biased["informative"]
+    few = est.statistic_agreement(mu[:2], reps[:2])
+    assert few["n"] == 2 and not few["informative"] and abs(few["r"]) == pytest.approx(1.0)
+
+
+def test_bootstrap_interval_covers_the_truth_at_about_its_level():
+    rng = np.random.default_rng(6)
+    covered = 0
+    trials = 60
+    for _ in range(trials):
+        values = rng.normal(loc=1.0, size=40)
+        _, lo, hi = est.bootstrap_interval(values, np.mean, n_boot=400)
+        covered += lo <= 1.0 <= hi
+    assert 0.85 * trials <= covered <= trials
+
+
+def test_bad_shapes_are_named():
+    with pytest.raises(ValueError, match="at least 2 replicas"):
+        est.noise_ceiling(np.zeros((3, 1, 4)))
+    with pytest.raises(ValueError, match="do not match"):
+        est.mse_against_expected(np.zeros((3, 5)), np.zeros((3, 2, 4)))
+    with pytest.raises(ValueError, match="NaN"):
+        est.noise_ceiling(np.full((2, 2, 2), np.nan))
