@@ -24,6 +24,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
+from condor.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pearson_r
 from condor.fields import normalise
 from condor.moulds import Mould, input_channels
 
@@ -223,35 +224,31 @@ def spearman(a, b) -> float:
     return float(np.corrcoef(a.rank().to_numpy(), b.rank().to_numpy())[0, 1])
 
 
-def agreement(predicted, simulated, n_boot: int = 2000, seed: int = 0,
-              level: float = 0.95) -> dict:
+def _pairs_spearman(pairs: np.ndarray) -> float:
+    return spearman(pairs[:, 0], pairs[:, 1])
+
+
+def agreement(predicted, simulated, n_boot: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> dict:
     """Predicted against simulated objective over n designs: spearman (with a percentile
-    bootstrap interval over designs), pearson, bias = mean(predicted - simulated) (with its
-    interval), median_difference, relative_bias = median(predicted / simulated - 1) (NaN unless
-    every simulated value is positive)."""
+    bootstrap interval over designs, condor.estimators.bootstrap_interval), pearson, bias =
+    mean(predicted - simulated) (with its interval), median_difference, relative_bias =
+    median(predicted / simulated - 1) (NaN unless every simulated value is positive: the
+    objective may change sign)."""
     p, s = np.asarray(predicted, float), np.asarray(simulated, float)
     keep = np.isfinite(p) & np.isfinite(s)
     p, s = p[keep], s[keep]
     n = len(p)
-    out = {"n": n, "spearman": spearman(p, s),
-           "pearson": float(np.corrcoef(p, s)[0, 1]) if n >= 3 else float("nan"),
-           "bias": float(np.mean(p - s)) if n else float("nan"),
+    out = {"n": n, "pearson": pearson_r(p, s) if n >= 3 else float("nan"),
            "median_difference": float(np.median(p - s)) if n else float("nan"),
            "relative_bias": float(np.median(p / s - 1)) if n and np.all(s > 0) else float("nan")}
-    low_q, high_q = 100 * (1 - level) / 2, 100 * (1 + level) / 2
-    rho_boot, bias_boot = [], []
     if n >= 3:
-        rng = np.random.default_rng([int(seed), 2])
-        for _ in range(n_boot):
-            i = rng.integers(0, n, n)
-            rho_boot.append(spearman(p[i], s[i]))
-            bias_boot.append(np.mean(p[i] - s[i]))
-    for name, boot in (("spearman", rho_boot), ("bias", bias_boot)):
-        boot = np.asarray(boot, float)
-        boot = boot[np.isfinite(boot)]
-        out[f"{name}_low"], out[f"{name}_high"] = (
-            (float(np.percentile(boot, low_q)), float(np.percentile(boot, high_q)))
-            if boot.size else (float("nan"), float("nan")))
+        rho = bootstrap_interval(np.stack([p, s], axis=1), _pairs_spearman, n_boot, seed=seed)
+        bias = bootstrap_interval(p - s, np.mean, n_boot, seed=seed)
+    else:
+        rho = (spearman(p, s), float("nan"), float("nan"))
+        bias = (float(np.mean(p - s)) if n else float("nan"), float("nan"), float("nan"))
+    for name, (value, low, high) in (("spearman", rho), ("bias", bias)):
+        out[name], out[f"{name}_low"], out[f"{name}_high"] = value, low, high
     return out
 
 
@@ -283,7 +280,7 @@ def confirmation_table(selection: pd.DataFrame, simulated: SimulatedDesigns) -> 
 
 
 def design_summary(table: pd.DataFrame, baseline: pd.DataFrame | None = None,
-                   replicas: pd.DataFrame | None = None, n_boot: int = 2000,
+                   replicas: pd.DataFrame | None = None, n_boot: int = BOOTSTRAP_SAMPLES,
                    seed: int = 0) -> pd.DataFrame:
     """One row: agreement of predicted and simulated objective over the confirmed designs
     (`confirmation_table`), the replicas' noise ceiling of the rank correlation, the best
