@@ -141,3 +141,15 @@ def test_the_simulator_accepts_design_moulds():
     with_tethers = next(m for m in moulds if m.n_tethers)
     result = simulate(with_tethers.polygon, with_tethers.tethers, scene.depth, budget=2, seed=1)
     assert result.status == "ok"
+
+
+def test_design_moulds_round_trip_through_the_mould_file_that_condor_simulate_reads(tmp_path):
+    from condor.moulds import load_json, save_json
+
+    space = DesignSpace.from_scene(SCENE, symmetry="none")
+    for i, x in enumerate(space.random_vectors(np.random.default_rng(5), 5)):
+        mould = space.mould(x, mould_id=i, seed=3)
+        save_json(mould, tmp_path / f"{i}.json")
+        back = load_json(tmp_path / f"{i}.json")  # validates, as `condor simulate` does
+        assert back.polygon.equals_exact(mould.polygon, 0)
+        assert np.array_equal(back.tethers, mould.tethers) and back.symmetry == "none"

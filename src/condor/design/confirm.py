@@ -2,7 +2,7 @@
 
 `select_for_confirmation` picks the designs to simulate: the best distinct designs and a
 random sample of the others, stratified over the predicted objective (one draw per
-equal-count stratum) so that the rank correlation measures how the surrogate orders the range
+equal-width bin) so that the rank correlation measures how the surrogate orders the range
 of designs the search saw, not only the seed noise among near-equal top designs.
 
 `simulate_designs` simulates each with replicas (condor.simulate.simulate, seeds by the
@@ -56,8 +56,10 @@ def select_for_confirmation(result: SearchResult, n_top: int = 5, n_random: int 
     top: the best-ranked distinct feasible designs whose rasters differ from every design
     already picked in at least `min_difference` of the pixels either occupies (near-copies
     confirm nothing new). random: from the remaining distinct designs with a defined
-    objective, one uniform draw in each of `n_random` equal-count strata of the predicted
-    objective (default_rng([seed, 1])).
+    objective, one uniform draw in each of `n_random` equal-width bins of the predicted
+    objective, topped up by uniform draws when bins are empty (default_rng([seed, 1])). Most
+    of a search's evaluations crowd near its optimum, so equal-width bins (rather than
+    equal-count ones) are what spreads the sample over the range the search saw.
     """
     for name, value in (("n_top", n_top), ("n_random", n_random)):
         if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < 0:
@@ -73,17 +75,28 @@ def select_for_confirmation(result: SearchResult, n_top: int = 5, n_random: int 
         if all(_difference(occupied, other) >= min_difference for other in rasters):
             picked.append(row.design)
             rasters.append(occupied)
-    rest = candidates[~candidates["design"].isin(picked)].sort_values("objective")
-    chosen_random = []
-    if n_random and len(rest):
-        rng = np.random.default_rng([int(seed), 1])
-        strata = np.array_split(np.arange(len(rest)), min(n_random, len(rest)))
-        chosen_random = [int(rest["design"].iloc[rng.choice(s)]) for s in strata if len(s)]
+    rest = candidates[~candidates["design"].isin(picked)]
+    chosen_random = _stratified_sample(rest["design"].to_numpy(), rest["objective"].to_numpy(),
+                                       n_random, np.random.default_rng([int(seed), 1]))
     table = pd.concat([
         candidates.set_index("design").loc[picked].reset_index().assign(role="top"),
         candidates.set_index("design").loc[chosen_random].reset_index().assign(role="random"),
     ], ignore_index=True)
     return table[["design", "role"] + [c for c in table.columns if c not in ("design", "role")]]
+
+
+def _stratified_sample(designs: np.ndarray, values: np.ndarray, n: int,
+                       rng: np.random.Generator) -> list[int]:
+    """One uniform draw in each of n equal-width bins of `values` (empty bins skipped), then
+    uniform draws from the rest until n are chosen (or none is left)."""
+    if n == 0 or len(designs) == 0:
+        return []
+    edges = np.linspace(values.min(), values.max(), n + 1)
+    bins = np.clip(np.searchsorted(edges, values, side="right") - 1, 0, n - 1)
+    chosen = [int(rng.choice(designs[bins == b])) for b in range(n) if np.any(bins == b)]
+    left = designs[~np.isin(designs, chosen)]
+    extra = rng.choice(left, size=min(n - len(chosen), len(left)), replace=False)
+    return chosen + [int(d) for d in extra]
 
 
 def _difference(a: np.ndarray, b: np.ndarray) -> float:
