@@ -1,6 +1,6 @@
-# condor: mould factory -> CONDOR simulation -> fields -> Zarr store (-> surrogate, report).
+# condor: mould factory -> CONDOR simulation -> fields -> Zarr store -> surrogate -> report.
 #   snakemake --cores 2                                   # embedded default config
-#   snakemake --cores 2 --configfile config/tiny.yaml     # a smoke run in seconds
+#   snakemake --cores 2 --configfile config/tiny.yaml     # a smoke run in a few minutes
 from snakemake.utils import min_version
 
 min_version("8.0")
@@ -10,10 +10,13 @@ configfile: "config/config.yaml"
 
 
 include: "workflow/rules/common.smk"
+include: "workflow/rules/repair.smk"
+include: "workflow/rules/lock.smk"
 include: "workflow/rules/moulds.smk"
 include: "workflow/rules/simulate.smk"
 include: "workflow/rules/fields.smk"
 include: "workflow/rules/surrogate.smk"
+include: "workflow/rules/studies.smk"
 include: "workflow/rules/report.smk"
 
 

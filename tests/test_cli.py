@@ -56,7 +56,7 @@ def test_simulate_refuses_a_mould_from_another_scene(tmp_path):
     condor("mould", "--seed", 3, "--scene", "tiny", "--out", "m.json", cwd=tmp_path)
     proc = condor("simulate", "m.json", "--scene", "paper", "--out", "s.npz", cwd=tmp_path)
     assert proc.returncode == 2
-    assert "--scene" in proc.stderr and "Traceback" not in proc.stderr
+    assert "scene" in proc.stderr and "15.625" in proc.stderr and "Traceback" not in proc.stderr
 
 
 def test_simulate_names_a_corrupt_mould_file(tmp_path):
@@ -68,9 +68,9 @@ def test_simulate_names_a_corrupt_mould_file(tmp_path):
 
 def test_check_store_lists_states(tmp_path):
     store = tmp_path / "d.zarr"
-    create_store(store, StoreSpec(n_samples=4, pixels=8, seed=0, split=assign_splits(4, 1, 0.0, 0), attrs={}))
+    create_store(store, StoreSpec(n_moulds=4, pixels=8, seed=0, split=assign_splits(4, 1, 0.0, 0), attrs={}))
     meta = {"seed": 0, "symmetry": "cyclic", "order": 2, "removal": "none", "n_tethers": 4}
-    sim = {"n_cells": 10, "energy": 0.0, "solver": "hybrid", "solver_seconds": 0.1}
+    sim = {"sim_seed": 1, "n_cells": 10, "energy": 0.0, "max_force": 1e-4, "solver": "hybrid", "solver_seconds": 0.1, "hardware": "test"}
     for sample in (0, 1, 2):
         write_inputs(store, sample, np.zeros((2, 8, 8), "uint8"), meta)
     write_sample(store, 0, np.ones((8, 8, 8), "float32"), sim, "ok")

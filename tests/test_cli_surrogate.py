@@ -9,7 +9,7 @@ from PIL import Image
 
 from condor import cli
 from condor.moulds import input_channels, load_json
-from condor.store import StoreSpec, create_store, open_dataset, write_inputs, write_sample
+from condor.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint
 from condor.surrogate.models import PREDICTION_MODES
 from condor.surrogate.predict import predict
@@ -24,15 +24,15 @@ FAST = ["--base", "8", "--batch-size", "4", "--lr", "2e-3", "--threads", "1"]
 def write_store(path, ds, box=BOX):
     """The synthetic samples in a store made by condor.store, as the workflow writes it."""
     n, size = ds.sizes["sample"], ds.sizes["x"]
-    spec = StoreSpec(n_samples=n, pixels=size, seed=0, split=tuple(ds["split"].values.astype(str)),
+    spec = StoreSpec(n_moulds=n, pixels=size, seed=0, split=tuple(ds["split"].values.astype(str)),
                      attrs={"pixel_size": box / size, "scene": {"name": "synthetic", "box": box}})
     create_store(path, spec)
     for i in range(n):
         write_inputs(path, i, ds["inputs"].values[i],
                      {"seed": 0, "symmetry": "none", "order": 1, "removal": "none", "n_tethers": 1})
         write_sample(path, i, ds["fields"].values[i],
-                     {"n_cells": int(ds["n_cells"].values[i]), "energy": 0.0, "solver": "synthetic",
-                      "solver_seconds": 0.0}, "ok")
+                     {"sim_seed": 0, "n_cells": int(ds["n_cells"].values[i]), "energy": 0.0,
+                      "max_force": 0.0, "solver": "synthetic", "solver_seconds": 0.0, "hardware": "test"}, "ok")
 
 
 @pytest.fixture(scope="module")
@@ -104,7 +104,7 @@ def test_evaluate_writes_tables_figures_and_baselines(trained, tmp_path, capsys)
     summary = pd.read_csv(out / "summary.csv", index_col="method")
     assert list(summary.index) == ["unet_l1_eval", "masked_mean", "mould_blur"]
     # The MAE table agrees with a direct computation from the store and the checkpoint.
-    ds = open_dataset(store)
+    ds = open_store(store)
     test = np.flatnonzero(ds["split"].values.astype(str) == "test")
     truth = ds["fields"].values[test]
     pred = predict(checkpoint, ds["inputs"].values[test], mode="eval").raw
@@ -116,7 +116,7 @@ def test_evaluate_writes_tables_figures_and_baselines(trained, tmp_path, capsys)
     assert sorted(per_sample.index) == sorted(test.tolist())
     for name in ("unet_l1_eval_Sx2_best.png", "unet_l1_eval_T_worst.png",
                  "unet_l1_eval_statistics.png", "mould_blur_mae_distribution.png"):
-        assert (out / name).stat().st_size > 2000
+        assert (out / "figures" / name).stat().st_size > 2000
     assert "masked_mean" in printed and "mould_blur" in printed and "paper" in printed
     assert "0.881" in printed
 

@@ -1,11 +1,15 @@
-"""Configuration: the shipped configs validate; bad keys and values are named."""
+"""Configuration: the shipped configs validate; defaults come from the packaged schema only;
+bad keys and values, and combinations that would fail late, are named before anything runs."""
 
+import dataclasses
 from pathlib import Path
 
 import pytest
 import yaml
 
-from condor.config import ConfigError, batches, load_config, scene_of, store_spec, validate_config
+from condor.config import SCHEMA_PATH, Config, ConfigError, load_schema
+from condor.moulds import MouldParams
+from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
@@ -16,18 +20,41 @@ def default_config():
 
 @pytest.mark.parametrize("name", ["config.yaml", "tiny.yaml", "paper.yaml"])
 def test_shipped_configs_validate(name):
-    config = load_config(CONFIG_DIR / name)
-    scene = scene_of(config)
-    assert scene.pixels >= 8
-    ids = [i for batch in batches(config) for i in batch]
-    assert ids == list(range(config["n_moulds"]))  # every mould in exactly one batch
+    config = Config.load(CONFIG_DIR / name)
+    assert config.scene.pixels >= 8
+    ids = [i for batch in config.batches() for i in batch]
+    assert ids == list(range(config.n_moulds))  # every mould in exactly one batch
+    assert len(config.replicas()) == config.n_moulds
+    assert config.store_spec().n_samples == sum(config.replicas())
 
 
-def test_defaults_are_filled():
-    config = validate_config({"scene": "tiny", "seed": 1, "n_moulds": 10, "split": {"test": 2}})
-    assert config["batch_size"] == 8
-    assert config["simulation"] == {"solver": "hybrid", "budget": None}
-    assert config["split"]["val_fraction"] == 0.1
+def test_schema_ships_in_the_package():
+    assert SCHEMA_PATH.parent == Path(__file__).resolve().parents[1] / "src" / "condor"
+    assert SCHEMA_PATH.is_file() and not (CONFIG_DIR / "config.schema.yaml").exists()
+
+
+def test_defaults_come_from_the_schema_and_the_library_only():
+    config = Config.from_dict({"scene": "tiny", "seed": 1, "n_moulds": 10, "split": {"test": 2}})
+    schema = load_schema()["properties"]
+    assert config.batch_size == schema["batch_size"]["default"]
+    assert config.split["val_fraction"] == schema["split"]["properties"]["val_fraction"]["default"]
+    assert config.simulation["replicas"]["test"] == \
+        schema["simulation"]["properties"]["replicas"]["properties"]["test"]["default"]
+    # solver, budget and the tether-free share are the library's own defaults, resolved once
+    assert config.solver() == (DEFAULT_SOLVER, DEFAULT_BUDGET[DEFAULT_SOLVER])
+    assert config.mould_params().no_tether_fraction == MouldParams().no_tether_fraction
+    assert config.data_config()["no_tether_fraction"] == MouldParams().no_tether_fraction
+
+
+def test_config_is_frozen_and_the_callers_dict_is_untouched():
+    raw = {"scene": "tiny", "seed": 1, "n_moulds": 10, "split": {"test": 2}}
+    config = Config.from_dict(raw)
+    assert raw == {"scene": "tiny", "seed": 1, "n_moulds": 10, "split": {"test": 2}}
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        config.seed = 2
+    with pytest.raises(TypeError):
+        config.simulation["solver"] = "anneal"
+    assert Config.from_dict(config.to_dict()) == config
 
 
 @pytest.mark.parametrize(
@@ -39,23 +66,39 @@ def test_defaults_are_filled():
         ({"seed": "seven"}, "seed"),
         ({"batch_size": 0}, "batch_size"),
         ({"simulation": {"solver": "newton"}}, "simulation/solver"),
+        ({"simulation": {"replicas": {"test": 0}}}, "simulation/replicas/test"),
         ({"moulds": {"no_tether_fraction": 1.5}}, "moulds/no_tether_fraction"),
         ({"scene_overrides": {"pixels": 3}}, "scene_overrides/pixels"),
         ({"scene_overrides": {"colour": 3}}, "colour"),
-        ({"split": {"test": 500}}, "split/test"),
+        ({"split": {"test": 500}}, "split"),
+        ({"split": {"test": 24, "val_fraction": 0.999}}, "val_fraction"),  # no training mould
+        ({"scene_overrides": {"pixels": 36}}, "surrogate/models/unet_l1"),  # 36 px, 3 levels
+        ({"surrogate": {"variants": ["unet_l1"], "models": {"unet_l1": {"model": "unet_l1",
+                                                                       "epochs": 0}}}}, "epochs"),
+        ({"surrogate": {"variants": ["nope"]}}, "nope"),
+        ({"surrogate": {"device": "cuda:0"}}, "device"),  # no CUDA on the test machines
     ],
 )
-def test_bad_values_are_named(change, named):
+def test_bad_values_are_named_before_anything_runs(change, named):
     config = default_config()
     config.update(change)
     with pytest.raises(ConfigError, match=named):
-        validate_config(config)
+        Config.from_dict(config)
 
 
-def test_store_spec_records_scene_and_split():
-    config = validate_config(default_config())
-    spec = store_spec(config)
-    assert spec.n_samples == config["n_moulds"]
+def test_message_is_one_line_without_a_schema_dump():
+    with pytest.raises(ConfigError) as info:
+        Config.from_dict({**default_config(), "n_mould": 5})
+    assert "\n" not in str(info.value) and len(str(info.value)) < 300
+
+
+def test_store_spec_records_scene_split_and_data_config():
+    config = Config.from_dict(default_config())
+    spec = config.store_spec()
+    assert spec.n_moulds == config.n_moulds
     assert spec.attrs["scene"]["name"] == "default"
-    assert spec.split.count("test") == config["split"]["test"]
-    assert spec == store_spec(validate_config(default_config()))  # deterministic
+    assert spec.split.count("test") == config.split["test"]
+    assert spec.attrs["data_config"] == config.data_config()
+    assert spec == Config.from_dict(default_config()).store_spec()  # deterministic
+    test_replicas = [r for r, s in zip(config.replicas(), config.splits()) if s == "test"]
+    assert set(test_replicas) == {config.simulation["replicas"]["test"]}

@@ -12,7 +12,7 @@ from condor.design import (agreement, baseline_objectives, confirm, dataset_base
                            simulate_designs, spearman)
 from condor.design.analytic import AnalyticPredictor
 from condor.fields import normalise
-from condor.pipeline import simulation_seed
+from condor.seeds import replica_seed
 from condor.scenes import get_scene
 
 SCENE = get_scene("tiny")
@@ -20,8 +20,9 @@ SCENE = get_scene("tiny")
 
 def test_replica_seeds_follow_the_store_convention():
     seeds = replica_seeds(2026, 17, 3)
-    assert seeds[0] == simulation_seed(2026, 17)
+    assert seeds[0] == int(np.random.default_rng([2026, 17, 1]).integers(2**62))  # the sample
     assert seeds[2] == int(np.random.default_rng([2026, 17, 1, 2]).integers(2**62))
+    assert seeds[1] == replica_seed(2026, 17, 1)
     assert len(set(seeds)) == 3
     with pytest.raises(ValueError, match="replicas"):
         replica_seeds(0, 0, 0)
@@ -62,20 +63,26 @@ def test_baseline_objective_uses_the_replica_mean_normalised_fields():
     assert np.allclose(single["objective"], objective.evaluate(normalise(raw[:, 0], n_cells))["objective"])
 
 
-def test_dataset_baseline_reads_the_ok_test_samples():
+def test_dataset_baseline_averages_the_ok_replicas_of_each_test_mould():
     import xarray as xr
 
     rng = np.random.default_rng(3)
-    fields = rng.uniform(0, 1, (4, 8, 8, 8)).astype(np.float32)
+    fields = rng.uniform(0, 1, (6, 8, 8, 8)).astype(np.float32)
+    # moulds 0..3 (replica 0), then replicas 1 of moulds 0 and 3
     ds = xr.Dataset({"fields": (("sample", "field", "y", "x"), fields),
-                     "n_cells": ("sample", [10, 20, 30, 40]),
-                     "status": ("sample", ["ok", "ok", "failed", "ok"]),
-                     "split": ("sample", ["test", "train", "test", "test"])},
-                    coords={"sample": [0, 1, 2, 3]})
-    table = dataset_baseline(parse_objective("uniformity"), ds)
-    assert table["mould_id"].tolist() == [0, 3]
+                     "n_cells": ("sample", [10, 20, 30, 40, 12, 44]),
+                     "status": ("sample", ["ok", "ok", "failed", "ok", "ok", "ok"]),
+                     "split": ("sample", ["test", "train", "test", "test", "test", "test"]),
+                     "mould": ("sample", [0, 1, 2, 3, 0, 3]),
+                     "replica": ("sample", [0, 0, 0, 0, 1, 1])},
+                    coords={"sample": np.arange(6)})
+    objective = parse_objective("uniformity + max_tension")
+    table = dataset_baseline(objective, ds)
+    assert table["mould_id"].tolist() == [0, 3] and table["n_replicas"].tolist() == [2, 2]
+    mean0 = (normalise(fields[0].astype(float), 10) + normalise(fields[4].astype(float), 12)) / 2
+    assert table["objective"][0] == pytest.approx(objective.evaluate(mean0)["objective"][0])
     with pytest.raises(ValueError, match="'val'"):
-        dataset_baseline(parse_objective("uniformity"), ds, split="val")
+        dataset_baseline(objective, ds, split="val")
 
 
 def test_replica_ceiling_is_one_for_identical_replicas_and_lower_with_noise():

@@ -14,6 +14,7 @@ from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, box as shapely_box
 
 from condor import moulds as M
+from condor import plots
 
 BOX = 62.5
 N_MOULDS = 2000
@@ -487,5 +488,108 @@ def test_regime_table(moulds):
 
 def test_gallery_writes_png(tmp_path, moulds):
     path = tmp_path / "gallery.png"
-    M.gallery(moulds[:8], path, ncols=4)
+    plots.mould_gallery(moulds[:8], path, ncols=4)
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+# --------------------------------------------------------------------------- user moulds
+
+
+def _user_dict(polygon, tethers, box=BOX) -> dict:
+    """What a user writes by hand: box, polygon and tethers, nothing of the generator."""
+    return {"box": box, "polygon": shapely.geometry.mapping(polygon),
+            "tethers": np.asarray(tethers, float).reshape(-1, 3).tolist()}
+
+
+def test_a_hand_made_mould_needs_only_box_polygon_and_tethers(tmp_path):
+    """The issue's case: a square of area fraction 0.262144 (not 0.4) with two tethers."""
+    side = math.sqrt(0.262144) * BOX
+    square = shapely_box(10, 10, 10 + side, 10 + side)
+    tethers = [[20, 20, 1.5], [30, 30, 2.0]]
+    path = tmp_path / "hand.json"
+    path.write_text(json.dumps(_user_dict(square, tethers)))
+    m = M.load_json(path)
+    assert not m.is_generated and m.symmetry == M.USER and m.removal == M.USER
+    assert m.seed is None and m.origin is None and m.unpruned_tethers is None
+    assert m.area_fraction is None and m.order == 1 and m.mould_id == 0
+    assert m.polygon.area / BOX**2 == pytest.approx(0.262144)
+    # exact round trip of a user mould too
+    d = m.to_dict()
+    assert json.loads(json.dumps(d)) == d
+    assert M.Mould.from_dict(d).to_dict() == d
+
+
+def test_generated_mould_json_is_unchanged():
+    """Every key a generated mould wrote before is written the same way (no nulls)."""
+    d = M.generate_mould(4, 2, box=BOX).to_dict()
+    assert set(d) == {"mould_id", "seed", "symmetry", "order", "removal", "box", "polygon",
+                      "tethers", "origin", "unpruned_tethers", "area_fraction",
+                      "convex_rounded", "concave_rounded", "outline"}
+    assert None not in d.values()
+    assert isinstance(d["seed"], int) and d["area_fraction"] == 0.4
+
+
+def test_generated_moulds_keep_the_exact_area_rule_with_a_hint():
+    m = _valid_mould()
+    d = m.to_dict()
+    d["polygon"] = shapely.geometry.mapping(affinity.scale(m.polygon, 0.9, 0.9))
+    with pytest.raises(M.InvalidMouldError, match="area fraction .* is not 0.4 .*leaves out"):
+        M.validate_mould(M.Mould.from_dict(d))
+    # the same geometry as a user mould (no symmetry, no area_fraction) is accepted
+    user = M.Mould.from_dict({k: d[k] for k in ("box", "polygon", "tethers")})
+    M.validate_mould(user)
+    # a user mould that states an area fraction must state the true one
+    with pytest.raises(M.InvalidMouldError, match="area_fraction is the generator's target"):
+        M.validate_mould(replace(user, area_fraction=0.4))
+
+
+def test_from_dict_names_missing_and_unknown_fields():
+    square = shapely_box(10, 10, 30, 30)
+    with pytest.raises(M.InvalidMouldError, match=r"missing mould field\(s\) \['tethers'\]"):
+        M.Mould.from_dict({"box": BOX, "polygon": shapely.geometry.mapping(square)})
+    with pytest.raises(M.InvalidMouldError, match="unknown mould field.*'tether'"):
+        M.Mould.from_dict({**_user_dict(square, []), "tether": []})
+
+
+@pytest.mark.parametrize("polygon, tethers, message", [
+    (shapely_box(10, 10, 10.9, 40), [], "narrower than a cell"),
+    # two 10 x 10 squares joined by a 0.8 l0 wide corridor
+    (shapely.union_all([shapely_box(5, 5, 15, 15), shapely_box(15, 9.6, 20, 10.4),
+                        shapely_box(20, 5, 30, 15)]), [], "neck narrower than a cell"),
+    # one post filling a 3 x 3 square but for its corners
+    (shapely_box(10, 10, 13, 13), [[11.5, 11.5, 1.49]], "no room for a mobile cell"),
+    (shapely_box(10, 10, 30, 30), [[20, 20, 1], [21.5, 20, 1]], "overlaps"),
+    (shapely_box(10, 10, 30, 30), [[10.5, 20, 1]], "not fully inside"),
+    (shapely_box(10, 10, 30, 30), [[20, 20, 0]], "not positive"),
+    (shapely_box(-1, 10, 30, 30), [], "leave the box"),
+])
+def test_user_moulds_are_refused_by_geometry(polygon, tethers, message):
+    m = M.Mould.from_dict(_user_dict(polygon, tethers))
+    with pytest.raises(M.InvalidMouldError, match=message):
+        M.validate_mould(m)
+
+
+def test_accepted_user_moulds_always_hold_mobile_cells():
+    """Brute force against condor.lattice: rotated strips near the one-cell limit, half of
+    them with a post of random size; every mould validate_mould accepts builds a lattice
+    with mobile cells (the check is conservative: it refuses some that would too)."""
+    from condor.lattice import build_lattice
+
+    rng = np.random.default_rng(11)
+    accepted = refused = 0
+    for _ in range(300):
+        x0, y0 = rng.uniform(5, 40, size=2)
+        w, h = rng.uniform(0.8, 2.2), rng.uniform(0.8, 6.0)
+        polygon = affinity.rotate(shapely_box(x0, y0, x0 + w, y0 + h), rng.uniform(0, 90))
+        cx, cy = polygon.centroid.coords[0]
+        tethers = [[cx, cy, rng.uniform(0.05, 0.5 * min(w, h))]] if rng.random() < 0.5 else []
+        m = M.Mould.from_dict(_user_dict(polygon, tethers))
+        try:
+            M.validate_mould(m)
+        except M.InvalidMouldError:
+            refused += 1
+            continue
+        accepted += 1
+        lattice = build_lattice(m.polygon, m.tethers, depth=2.0)
+        assert (~lattice.fixed).any()
+    assert accepted > 50 and refused > 50

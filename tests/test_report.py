@@ -1,4 +1,5 @@
-"""The HTML report (condor.report) and the cost/accuracy chart (condor.costchart)."""
+"""The HTML report (condor.report): building blocks, the workflow report from synthetic inputs,
+its plain-words verdicts, and that it renders in headless Chromium."""
 
 import base64
 import html.parser
@@ -7,12 +8,10 @@ import re
 import numpy as np
 import pandas as pd
 import pytest
-from shapely.geometry import box
 
-from condor import costchart, report, tradeoff
-from condor.lattice import build_lattice
-from condor.moulds import Mould
-from condor.scenes import get_scene
+from condor import plots, report
+from condor.config import Config
+from condor.store import StoreSpec, create_store, write_inputs, write_sample
 
 
 def png(path, seed=0, size=(40, 30)):
@@ -95,63 +94,139 @@ def test_render_links_every_section_from_the_contents():
 
 # --- the workflow's report, from synthetic inputs ----------------------------------------
 
+CONFIG = Config.from_dict({"scene": "tiny", "seed": 1, "n_moulds": 4, "split": {"test": 1},
+                           "surrogate": {"variants": ["unet"],
+                                         "models": {"unet": {"model": "unet_l1"}}}})
+
+
+def accuracy_table(surrogate=(0.05, 0.04, 0.06)):
+    rows = [("single simulation", "dataset solver", 2.0, (0.10, 0.09, 0.11)),
+            ("anneal 10", "anneal", 0.01, (0.30, 0.28, 0.32)),
+            ("anneal 1000", "anneal", 1.0, (0.105, 0.08, 0.13)),
+            ("unet", "surrogate", 0.002, surrogate),
+            ("baseline masked_mean", "baseline", 1e-4, (0.2, 0.18, 0.22))]
+    return pd.DataFrame([{"method": m, "family": f, "cpu_s_per_mould": c, "field_error": e[0],
+                          "field_error_lo": e[1], "field_error_hi": e[2],
+                          "field_error_plain": e[0] + 0.01, "n_moulds": 12, "error_P": e[0]}
+                         for m, f, c, e in rows])
+
+
+def statistics_table(n=12, bias=0.002, r=0.99):
+    rows = []
+    for method in ("single simulation", "unet"):
+        for stat in ("mean_P", "mean_T"):
+            rows.append({"method": method, "family": "x", "statistic": stat, "n": n, "r": r,
+                         "r_lo": r - 0.01, "r_hi": min(r + 0.005, 1), "r_ceiling": 0.999,
+                         "bias": bias, "bias_lo": bias - 0.001, "bias_hi": bias + 0.001,
+                         "informative": n >= 10, "paper_r": 0.881 if stat == "mean_P" else 0.98,
+                         "paper_relation": "=" if stat == "mean_P" else ">"})
+    return pd.DataFrame(rows)
+
 
 def fake_inputs(tmp_path):
     d = tmp_path
-    for name in ("gallery", "samples", "sa", "conv", "cost"):
+    for name in ("gallery", "samples", "chart", "conv"):
         png(d / f"{name}.png", seed=len(name))
-    pd.DataFrame({"sample": range(4), "split": ["train", "train", "val", "test"],
-                  "status": ["ok", "ok", "ok", "folded: x"], "state": ["ok"] * 3 + ["failed"]}
-                 ).to_csv(d / "summary.csv", index=False)
+    pd.DataFrame({"sample": range(4), "mould": range(4), "split": ["train", "train", "val", "test"],
+                  "status": ["ok", "ok", "ok", "folded: 2% inverted"],
+                  "state": ["ok"] * 3 + ["failed"]}).to_csv(d / "summary.csv", index=False)
     pd.DataFrame({"regime": ["cyclic"], "share": [1.0], "paper_share": [0.2]}).to_csv(
         d / "regimes.csv", index=False)
-    pd.DataFrame({"mould": [1, 2], "method": ["hybrid"] * 2}).to_csv(d / "sa.csv", index=False)
-    pd.DataFrame({c: [1] for c in ["role", "method", "runs", "n_cells", "seconds", "rel_energy",
-                                   "rel_energy_ref", "field_mae", "ok"]}).to_csv(d / "sas.csv", index=False)
-    pd.DataFrame({"study": ["depth"], "value": [2.0], "baseline": [False], "rel_mean": [0.1]}
-                 ).to_csv(d / "conv.csv", index=False)
+    accuracy_table().to_csv(d / "accuracy.csv", index=False)
+    statistics_table().to_csv(d / "statistics.csv", index=False)
+    pd.DataFrame({"mould": [4, 4], "rung": ["dataset solver", "anneal 1000 + FIRE"],
+                  "budget": [np.nan, 1000.0], "runs": [8, 3], "energy_per_cell": [0.01, 0.0101],
+                  "distance_to_dataset": [0.0, 0.02], "spread": [0.1, 0.11]}).to_csv(
+        d / "ladder.csv", index=False)
+    pd.DataFrame({"study": ["depth"], "mould": [4], "value": [2.0], "change_P": [0.01],
+                  "noise_P": [0.05], "justified": [True]}).to_csv(d / "conv.csv", index=False)
     pd.DataFrame({"case": ["no tethers"], "solver": ["anneal"], "status": ["ok"],
                   "as_expected": [True], "what": ["valid"]}).to_csv(d / "stab.csv", index=False)
-    pd.DataFrame({"family": ["hybrid"], "method": ["hybrid"], "seconds": [1.0]}).to_csv(
-        d / "cost.csv", index=False)
     pd.DataFrame({"method": ["unet_eval"], "mae_P": [0.1]}).to_csv(d / "ssum.csv", index=False)
-    ev = d / "evaluation" / "unet"
-    (ev / "figures").mkdir(parents=True)
-    png(ev / "figures" / "unet_eval_statistics.png", seed=9)
-    pd.DataFrame({"statistic": ["mean_P"], "r": [0.9], "paper_r": [0.881]}).to_csv(
-        ev / "unet_eval_correlations.csv", index=False)
-    return report.ReportInputs(
-        gallery=d / "gallery.png", regimes=d / "regimes.csv", samples=d / "samples.png",
-        dataset_summary=d / "summary.csv", speed_accuracy=d / "sa.csv",
-        speed_accuracy_summary=d / "sas.csv", speed_accuracy_chart=d / "sa.png",
-        convergence=d / "conv.csv", convergence_summary=d / "conv.csv",
-        convergence_chart=d / "conv.png", stability=d / "stab.csv", cost_accuracy=d / "cost.csv",
-        cost_accuracy_chart=d / "cost.png", surrogate_summary=d / "ssum.csv",
-        evaluations={"unet": ev})
+    pd.DataFrame({"epoch": [1, 2], "l1": [0.5, 0.4]}).to_csv(d / "unet_history.csv", index=False)
+    figures = d / "evaluation" / "unet" / "figures"
+    figures.mkdir(parents=True)
+    png(figures / "unet_eval_statistics.png", seed=9)
+    store = d / "dataset.zarr"
+    create_store(store, StoreSpec(2, 8, 0, ("train", "test"), {}))
+    for i in range(2):
+        write_inputs(store, i, np.ones((2, 8, 8), np.uint8),
+                     {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2})
+        write_sample(store, i, np.ones((8, 8, 8), np.float32),
+                     {"sim_seed": 1, "n_cells": 100, "energy": 1.0, "max_force": 1e-4,
+                      "solver": "hybrid", "solver_seconds": 2.0, "hardware": "test"}, "ok")
+    inputs = {"dataset_summary": d / "summary.csv", "regimes": d / "regimes.csv",
+              "gallery": d / "gallery.png", "samples": d / "samples.png",
+              "accuracy": d / "accuracy.csv", "statistics": d / "statistics.csv",
+              "accuracy_chart": d / "chart.png", "ladder": d / "ladder.csv",
+              "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
+              "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
+              "evaluations": [figures], "histories": [d / "unet_history.csv"]}
+    assert set(inputs) == set(report.REPORT_INPUTS)
+    return inputs, store
 
 
-def test_condor_report_has_every_section_with_content(tmp_path):
-    inputs = fake_inputs(tmp_path)
-    out = report.condor_report(inputs, {"scene": "tiny", "n_moulds": 4, "seed": 1},
-                               tmp_path / "out" / "report.html")
+def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
+    inputs, store = fake_inputs(tmp_path)
+    out = report.condor_report(CONFIG, inputs, store, tmp_path / "out" / "report.html")
     page = out.read_text()
     p = parse(page)
-    expected = ["dataset", "moulds", "samples", "simulator", "convergence", "surrogate", "cost",
-                "stability"]
-    assert p.anchors == [f"#{s}" for s in expected]
-    assert len(p.images) == 6  # gallery, samples, 3 charts, 1 evaluation figure
+    assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#dataset"]
+    assert len(p.images) == 5  # chart, convergence, evaluation figure, gallery, samples
     assert all(src.startswith("data:image/png;base64,") for src in p.images)
     assert "src=\"http" not in page and "href=\"http" not in page  # self-contained
-    assert "3 samples finished ok" in page and "0.881" in page and "no tethers" in page
+    summary = page[page.index('id="summary"'):page.index('id="accuracy"')]
+    assert "3 of 4 simulations finished ok" in summary and "folded" in summary
+    assert "closer to the average organisation than one simulation" in summary
+    assert "0.881" in summary  # the paper's r beside ours
+    assert page.count("<details") >= 4  # galleries and long tables fold away
     # A missing evaluation figure is an error, not a placeholder.
     (tmp_path / "evaluation" / "unet" / "figures" / "unet_eval_statistics.png").unlink()
     with pytest.raises(report.ReportError, match="figures"):
-        report.condor_report(inputs, {}, tmp_path / "again.html")
+        report.condor_report(CONFIG, inputs, store, tmp_path / "again.html")
+    with pytest.raises(report.ReportError, match="ladder"):
+        report.condor_report(CONFIG, {k: v for k, v in inputs.items() if k != "ladder"}, store,
+                             tmp_path / "again.html")
+
+
+@pytest.mark.parametrize("surrogate, words", [
+    ((0.05, 0.04, 0.06), "closer to the average organisation than one simulation is"),
+    ((0.20, 0.18, 0.22), "farther from the average organisation than one simulation is"),
+    ((0.10, 0.08, 0.12), "as close to the average organisation as one simulation"),
+])
+def test_accuracy_verdict_follows_the_intervals(surrogate, words):
+    text = report.accuracy_verdict(accuracy_table(surrogate))
+    assert words in text
+    assert "anneal 10" in text and "anneal 1000" not in text.split("Unconverged")[1]
+
+
+def test_statistics_verdict_names_biases_and_small_samples():
+    assert "not informative" in report.statistics_verdict(statistics_table(n=2), "unet")
+    text = report.statistics_verdict(statistics_table(bias=0.05), "unet")
+    assert "mean P" in text and "more than 1%" in text
+    assert "no statistic is biased" in report.statistics_verdict(statistics_table(), "unet")
+    low = report.statistics_verdict(statistics_table(r=0.9), "unet")
+    assert "r below both" in low
+
+
+def test_ladder_verdict():
+    table = pd.DataFrame({"rung": ["dataset solver", "anneal 1000 + FIRE", "anneal 1000 + FIRE"],
+                          "budget": [np.nan, 1000.0, 1000.0], "distance_to_dataset": [0, 0.02, 0.3],
+                          "spread": [0.1, 0.1, 0.1]})
+    assert "On 1 of 2 ladder moulds" in report.ladder_verdict(table)
+    table.loc[2, "distance_to_dataset"] = 0.01
+    assert "samples the same states" in report.ladder_verdict(table)
+
+
+def test_accuracy_chart_draws_every_method(tmp_path):
+    path = plots.accuracy_chart(accuracy_table(), tmp_path / "chart.png")
+    assert path.stat().st_size > 10_000
 
 
 @pytest.mark.skipif(report.find_chromium() is None, reason="no Chromium on PATH")
 def test_report_renders_in_headless_chromium(tmp_path):
-    out = report.condor_report(fake_inputs(tmp_path), {"scene": "tiny"}, tmp_path / "r.html")
+    inputs, store = fake_inputs(tmp_path)
+    out = report.condor_report(CONFIG, inputs, store, tmp_path / "r.html")
     shot = report.screenshot(out, tmp_path / "r.png", width=1000, height=2500)
     coverage = report.screenshot_coverage(shot)
     assert coverage["width"] == 1000 and coverage["height"] == 2500
@@ -159,81 +234,3 @@ def test_report_renders_in_headless_chromium(tmp_path):
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body></body></html>")
     assert report.screenshot_coverage(report.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
-
-
-# --- cost per mould against error --------------------------------------------------------
-
-
-def test_field_errors_brute_force():
-    rng = np.random.default_rng([3, 1])
-    raw = rng.random((2, 8, 5, 6))
-    reference = rng.random((2, 8, 5, 6))
-    expected = []
-    for s in range(2):
-        total = sum(raw[s, 0, y, x] for y in range(5) for x in range(6))
-        norm = raw[s] * 30 / total
-        expected.append(np.mean([abs(norm[c, y, x] - reference[s, c, y, x])
-                                 for c in range(8) for y in range(5) for x in range(6)]))
-    assert np.allclose(costchart.field_errors(raw, reference), expected)
-    raw[1, 0] = 0.0  # no predicted density: undefined normalisation
-    assert np.isnan(costchart.field_errors(raw, reference)[1])
-    with pytest.raises(ValueError, match="differ"):
-        costchart.field_errors(raw[:, :4], reference)
-
-
-def test_predictor_rows_score_a_perfect_and_a_shifted_predictor():
-    rng = np.random.default_rng([4, 2])
-    reference = rng.random((3, 8, 4, 4)) + 0.1
-    n_cells = np.array([10.0, 20.0, 30.0])
-    # raw fields whose normalisation gives back the reference exactly
-    raw = reference * n_cells[:, None, None, None] / 16
-    raw[:, 0] *= 16 * n_cells[:, None, None] / (16 * raw[:, 0].sum(axis=(1, 2))[:, None, None])
-    reference[:, 0] = raw[:, 0] * 16 / n_cells[:, None, None]
-    inputs = np.arange(3)[:, None, None, None] * np.ones((3, 2, 4, 4))
-    lookup = lambda x: raw[int(x[0, 0, 0, 0])][None]  # noqa: E731
-    rows = costchart.predictor_rows("perfect", "surrogate", lookup, inputs, reference, [7, 8, 9])
-    assert [r["mould"] for r in rows] == [7, 8, 9]
-    assert np.allclose([r["field_mae"] for r in rows], 0, atol=1e-12)
-    assert all(r["seconds"] >= 0 and r["status"] == "ok" for r in rows)
-    shifted = lambda x: lookup(x) + np.r_[0, np.full(7, 0.5)][None, :, None, None] * n_cells[int(x[0, 0, 0, 0])] / 16  # noqa: E731
-    rows = costchart.predictor_rows("shifted", "surrogate", shifted, inputs, reference, [7, 8, 9])
-    assert np.allclose([r["field_mae"] for r in rows], 0.5 * 7 / 8)
-
-
-def test_cost_table_medians_and_ranges():
-    rows = [dict(mould=m, method=meth, family=fam, seconds=s, field_mae=e, status="ok")
-            for m, meth, fam, s, e in [(1, "hybrid", "hybrid", 2.0, 0.1), (2, "hybrid", "hybrid", 4.0, 0.3),
-                                       (3, "hybrid", "hybrid", 9.0, 0.2), (1, "unet", "surrogate", 0.01, 0.5),
-                                       (1, "anneal 1e4", "long anneal", 30.0, 0.05)]]
-    table = costchart.cost_table(rows)
-    assert list(table["method"]) == ["anneal 1e4", "hybrid", "unet"]  # family order
-    hybrid = table.set_index("method").loc["hybrid"]
-    assert (hybrid["moulds"], hybrid["seconds"], hybrid["seconds_min"], hybrid["seconds_max"]) == (3, 4.0, 2.0, 9.0)
-    assert hybrid["field_mae"] == pytest.approx(0.2)
-
-
-def test_reference_is_reproduced_and_chart_is_drawn(tmp_path):
-    """costchart's reference is the sweep's (same energy, zero field MAE against it), and the
-    simulation rows carry the sweep's costs and errors into the chart."""
-    scene = get_scene("tiny", depth=1.5)
-    tethers = np.array([[3.5, 5.0, 0.9], [7.5, 5.0, 0.9]])
-    mould = Mould(mould_id=0, seed=0, symmetry="dihedral", order=2, removal="none",
-                  box=scene.box, polygon=box(2, 2, 9, 8), tethers=tethers, origin=(5.5, 5.0),
-                  unpruned_tethers=tethers)
-    methods = [tradeoff.Method("anneal 10", "anneal", 10.0)]
-    df, fields = costchart.sweep_with_reference(scene, mould, (10,), (1,), 200.0)
-    df2 = tradeoff.sweep(scene, moulds=[mould], methods=methods, reference_budget=200.0)
-    ref = df2[df2["role"] == "reference"].iloc[0]
-    assert df["reference_check"].iloc[0] == pytest.approx(0, abs=1e-12)
-    lattice = build_lattice(mould.polygon, mould.tethers, scene.depth)
-    again = costchart.reference_result(lattice, 200.0)
-    assert again.energy_per_cell == pytest.approx(ref["energy_per_cell"], rel=1e-12)
-    mine = tradeoff.normalised_fields(again, scene.box, scene.pixels, scene.sigma)
-    assert np.array_equal(mine, fields)
-    rows = costchart.simulation_rows(df)
-    assert "tight minimiser" not in {r["family"] for r in rows}
-    assert {"reference", "long anneal", "anneal", "minimise", "hybrid"} <= {r["family"] for r in rows}
-    assert [r["field_mae"] for r in rows if r["family"] == "reference"] == [0.0]
-    table = costchart.cost_table(rows)
-    costchart.chart(table, tmp_path / "cost.png")
-    assert (tmp_path / "cost.png").stat().st_size > 10_000

@@ -14,8 +14,12 @@ from condor.store import (
     StoreSpec,
     assign_splits,
     check_store,
+    check_metadata,
     create_store,
-    open_dataset,
+    open_store,
+    sample_index,
+    sample_layout,
+    write_expected,
     write_inputs,
     write_sample,
 )
@@ -24,13 +28,14 @@ PIXELS = 8
 MOULD_META = {"seed": 1, "symmetry": "cyclic", "order": 3, "removal": "none", "n_tethers": 6}
 
 
-def spec(n=6, seed=3, **attrs):
-    return StoreSpec(n_samples=n, pixels=PIXELS, seed=seed, split=assign_splits(n, 1, 0.2, seed),
-                     attrs={"scene": {"name": "test"}, **attrs})
+def spec(n=6, seed=3, replicas=None, **attrs):
+    return StoreSpec(n_moulds=n, pixels=PIXELS, seed=seed, split=assign_splits(n, 1, 0.2, seed),
+                     attrs={"scene": {"name": "test"}, **attrs}, replicas=replicas)
 
 
 def sim_meta(n_cells=100):
-    return {"n_cells": n_cells, "energy": -1.5, "solver": "hybrid", "solver_seconds": 0.25}
+    return {"sim_seed": 5, "n_cells": n_cells, "energy": -1.5, "max_force": 1e-4,
+            "solver": "hybrid", "solver_seconds": 0.25, "hardware": "test"}
 
 
 def fake_fields(sample):
@@ -75,7 +80,7 @@ def test_sample_visible_only_when_status_written(tmp_path):
     assert table.loc[2, "state"] == "ok"
     assert table.loc[3, "state"] == "failed"
     assert table.loc[3, "status"].startswith("folded")
-    ds = open_dataset(path)
+    ds = open_store(path)
     np.testing.assert_array_equal(ds["fields"].isel(sample=2).values, fake_fields(2))
     assert np.isnan(ds["fields"].isel(sample=3).values).all()  # failures write no fields
     assert int(ds["n_cells"].values[2]) == 100
@@ -89,16 +94,20 @@ def test_existing_store_is_kept_and_mismatch_is_refused(tmp_path):
     assert check_store(path)["state"][0] == "pending"
     with pytest.raises(StoreError, match="seed"):
         create_store(path, spec(seed=4))
-    with pytest.raises(StoreError, match="n_samples"):
+    with pytest.raises(StoreError, match="n_moulds"):
         create_store(path, spec(n=7))
+    with pytest.raises(StoreError, match="replicas"):
+        create_store(path, spec(replicas=(1, 1, 2, 1, 1, 1)))
     assert check_store(path)["state"][0] == "pending"  # refusing lost nothing
 
 
 def test_bad_writes_are_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
-    with pytest.raises(StoreError, match="outside"):
+    with pytest.raises(StoreError, match="not in the store"):
         write_inputs(path, 6, np.ones((2, PIXELS, PIXELS)), MOULD_META)
+    with pytest.raises(StoreError, match="outside"):
+        write_sample(path, 6, fake_fields(0), sim_meta(), "ok")
     with pytest.raises(ValueError, match="shape"):
         write_inputs(path, 0, np.ones((2, PIXELS + 1, PIXELS)), MOULD_META)
     nan_fields = fake_fields(0)
@@ -110,16 +119,16 @@ def test_bad_writes_are_refused(tmp_path):
 
 def test_foreign_and_truncated_stores_give_clear_errors(tmp_path):
     with pytest.raises(StoreError, match="no dataset store"):
-        open_dataset(tmp_path / "absent.zarr")
+        open_store(tmp_path / "absent.zarr")
     foreign = tmp_path / "foreign.zarr"
     zarr.open_group(foreign, mode="w").create_array("x", shape=(3,), dtype="int8")
     with pytest.raises(StoreError, match="not a condor dataset"):
-        open_dataset(foreign)
+        open_store(foreign)
     not_zarr = tmp_path / "text.zarr"
     not_zarr.mkdir()
     (not_zarr / "zarr.json").write_text("{ this is not json")
     with pytest.raises(StoreError, match="not a readable Zarr store"):
-        open_dataset(not_zarr)
+        open_store(not_zarr)
     truncated = tmp_path / "trunc.zarr"
     create_store(truncated, spec())
     shutil.rmtree(truncated / "fields")
@@ -154,7 +163,88 @@ def test_parallel_writers_lose_nothing(tmp_path):
     with multiprocessing.get_context("spawn").Pool(4) as pool:
         pool.map(_write_one, [(str(path), s) for s in range(n)], chunksize=1)
     assert (check_store(path, deep=True)["state"] == "ok").all()
-    ds = open_dataset(path)
+    ds = open_store(path)
     np.testing.assert_array_equal(ds["n_cells"].values, np.arange(n))
     for sample in range(n):
         np.testing.assert_array_equal(ds["fields"].isel(sample=sample).values, fake_fields(sample))
+
+
+# --- replicas, expected fields, checks without decompression, checksums --------------------
+
+
+def test_replica_layout_round_trips_and_keeps_sample_equal_to_mould():
+    counts = (1, 3, 1, 2, 1)
+    moulds, replicas = sample_layout(counts)
+    assert list(moulds[:5]) == [0, 1, 2, 3, 4] and list(replicas[:5]) == [0] * 5
+    pairs = {(int(m), int(r)) for m, r in zip(moulds, replicas)}
+    assert pairs == {(m, r) for m, c in enumerate(counts) for r in range(c)}
+    for s, (m, r) in enumerate(zip(moulds, replicas)):
+        assert sample_index(counts, int(m), int(r)) == s
+
+
+def test_inputs_reach_every_replica_and_expected_fields_are_their_mean(tmp_path):
+    path = tmp_path / "d.zarr"
+    counts = (1, 3, 1, 1, 1, 2)
+    create_store(path, spec(replicas=counts))
+    rng = np.random.default_rng(0)
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+    replicas = [rng.random((8, PIXELS, PIXELS)).astype("float32") for _ in range(3)]
+    for r, fields in enumerate(replicas):
+        write_sample(path, sample_index(counts, 1, r), fields, sim_meta(), "ok")
+    assert write_expected(path) == 2
+    ds = open_store(path)
+    assert list(ds["replicated"].values) == [1, 5]
+    assert (ds["inputs"].values[[1, 6, 7]] == 1).all() and (ds["inputs_ready"].values[[1, 6, 7]] == 1).all()
+    stack = np.stack(replicas).astype(np.float64)
+    np.testing.assert_allclose(ds["fields_mean"].values[0], stack.mean(axis=0), rtol=1e-6)
+    np.testing.assert_allclose(ds["fields_std"].values[0], stack.std(axis=0, ddof=1), rtol=1e-5)
+    assert list(ds["n_replicas_ok"].values) == [3, 0]
+    assert np.isnan(ds["fields_mean"].values[1]).all()  # mould 5 has no ok replica yet
+    assert set(ds["split"].values[[1, 6, 7]]) == {ds["split"].values[1]}
+
+
+def _finished(tmp_path, n=4):
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=n))
+    for sample in range(n):
+        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+        write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
+    return path
+
+
+def test_a_lost_chunk_is_found_without_decoding(tmp_path):
+    path = _finished(tmp_path)
+    shutil.rmtree(path / "fields" / "c" / "2")
+    table = check_store(path).set_index("sample")
+    assert table.loc[2, "state"] == "corrupt" and table.loc[2, "lost"] == "fields"
+    assert (table.drop(index=2)["state"] == "ok").all()
+    shutil.rmtree(path / "inputs" / "c" / "0")
+    assert check_store(path).set_index("sample").loc[0, "lost"] == "inputs"
+
+
+def test_a_flipped_byte_fails_its_checksum(tmp_path):
+    path = _finished(tmp_path)
+    chunk = next(p for p in (path / "fields" / "c" / "1").rglob("*") if p.is_file())
+    data = bytearray(chunk.read_bytes())
+    data[len(data) // 2] ^= 0x01
+    chunk.write_bytes(bytes(data))
+    assert check_store(path).set_index("sample").loc[1, "state"] == "ok"  # listing only
+    deep = check_store(path, deep=True).set_index("sample")["state"]
+    assert deep[1] == "corrupt" and (deep.drop(index=1) == "ok").all()
+
+
+def test_edited_metadata_is_found(tmp_path):
+    import json
+
+    path = _finished(tmp_path)
+    assert check_metadata(path) == []
+    meta_path = path / "fields" / "zarr.json"
+    meta = json.loads(meta_path.read_text())
+    meta["data_type"] = "float64"
+    meta_path.write_text(json.dumps(meta))
+    assert any("fields" in p and "consolidated" in p for p in check_metadata(path))
+    root = json.loads((path / "zarr.json").read_text())
+    root["attributes"]["n_samples"] = 99
+    (path / "zarr.json").write_text(json.dumps(root))
+    with pytest.raises(StoreError, match="disagree"):
+        check_store(path)

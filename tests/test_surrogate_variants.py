@@ -4,13 +4,12 @@ train/evaluate entry points on a real-format store."""
 import pandas as pd
 import pytest
 
-from condor.config import load_config, scene_of
+from condor.config import Config, ConfigError
+from condor.stages.surrogate import evaluate, evaluate_baselines, summarise, train, working_checkpoint
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.evaluate import combine_summaries
 from condor.surrogate.models import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
-from condor.surrogate.variants import (evaluate_variant, evaluate_workflow_baselines, train_config,
-                                       train_variant, working_checkpoint, workflow_variants)
+from condor.surrogate.variants import train_config, workflow_variants
 from test_cli_surrogate import write_store
 
 REPO_CONFIGS = ("config/config.yaml", "config/tiny.yaml", "config/paper.yaml")
@@ -39,16 +38,17 @@ def test_train_config_rejects_bad_settings(settings, message):
 
 def test_workflow_variants_and_repository_configs():
     for path in REPO_CONFIGS:
-        config = load_config(path)
+        config = Config.load(path)
         variants = workflow_variants(config)
         assert variants, path
         for name, settings in variants.items():
-            train_config(settings, scene_of(config).pixels)
-    config = {"surrogate": {"variants": ["a", "b"], "models": {"a": {"model": "unet_l1"}}}}
-    with pytest.raises(ValueError, match="'b'"):
-        workflow_variants(config)
-    with pytest.raises(ValueError, match="baselines"):
-        workflow_variants({"surrogate": {"variants": ["baselines"], "models": {}}})
+            train_config(settings, config.scene.pixels)
+    base = {"scene": "tiny", "seed": 1, "n_moulds": 8, "split": {"test": 2}}
+    with pytest.raises(ConfigError, match="'b'"):
+        Config.from_dict({**base, "surrogate": {"variants": ["a", "b"],
+                                                "models": {"a": {"model": "unet_l1"}}}})
+    with pytest.raises(ConfigError, match="baselines"):
+        Config.from_dict({**base, "surrogate": {"variants": ["baselines"], "models": {}}})
 
 
 def test_schema_rejects_unknown_variant_key(tmp_path):
@@ -56,7 +56,7 @@ def test_schema_rejects_unknown_variant_key(tmp_path):
             "    u: {model: unet_l1, epoch: 3}\n")
     (tmp_path / "c.yaml").write_text(text)
     with pytest.raises(ValueError, match="epoch"):
-        load_config(tmp_path / "c.yaml")
+        Config.load(tmp_path / "c.yaml")
 
 
 @pytest.fixture(scope="module")
@@ -73,34 +73,34 @@ def test_train_variant_publishes_and_resumes(store, tmp_path):
     final = tmp_path / "models" / "v.pt"
     final.parent.mkdir()
     lines = []
-    history = train_variant(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log=lines.append)
+    history = train(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log_line=lines.append)
     assert len(history) == 2 and final.is_file() and working_checkpoint(final).is_file()
     assert pd.read_csv(tmp_path / "h.csv")["epoch"].tolist() == [1, 2]
     # More epochs resume the working checkpoint: only epoch 3 runs.
     lines.clear()
-    train_variant(store, {**SETTINGS, "epochs": 3}, final, threads=1, log=lines.append)
-    assert [line.split()[1] for line in lines] == ["3/3"]
+    train(store, {**SETTINGS, "epochs": 3}, final, threads=1, log_line=lines.append)
+    assert lines[0].startswith("resuming") and [line.split()[1] for line in lines[1:]] == ["3/3"]
     assert load_checkpoint(final)["epoch"] == 3
     # Other settings discard the working checkpoint and start over.
     lines.clear()
-    train_variant(store, {**SETTINGS, "base": 4}, final, threads=1, log=lines.append)
-    assert lines[0].startswith("starting over") and len(lines) == 3
+    train(store, {**SETTINGS, "base": 4}, final, threads=1, log_line=lines.append)
+    assert lines[1].startswith("starting over") and len(lines) == 4
     assert load_checkpoint(final)["generator_config"]["base"] == 4
 
 
 def test_workflow_evaluation_files_and_summary(store, tmp_path):
     checkpoint = tmp_path / "v.pt"
-    train_variant(store, SETTINGS, checkpoint, threads=1, log=lambda s: None)
-    evaluate_variant(store, checkpoint, tmp_path / "v", "v", modes=["eval", "train"])
-    evaluate_workflow_baselines(store, tmp_path / "baselines")
+    train(store, SETTINGS, checkpoint, threads=1, log_line=lambda s: None)
+    evaluate(store, checkpoint, tmp_path / "v", "v", modes=["eval", "train"])
+    evaluate_baselines(store, tmp_path / "baselines")
     assert {p.name for p in (tmp_path / "v").iterdir()} == {
         "summary.csv", "figures", "v_eval_mae.csv", "v_eval_correlations.csv", "v_train_mae.csv",
         "v_train_correlations.csv"}
     assert len(list((tmp_path / "v" / "figures").glob("v_*.png"))) == 12
     assert len(list((tmp_path / "baselines" / "figures").glob("*.png"))) == 12
     paths = [tmp_path / "v" / "summary.csv", tmp_path / "baselines" / "summary.csv"]
-    summary = combine_summaries(paths)
+    summary = summarise(paths, tmp_path / "summary.csv")
     assert list(summary.index) == ["v_eval", "v_train", "masked_mean", "mould_blur"]
     assert (summary["seconds_per_mould"] > 0).all()
     with pytest.raises(ValueError, match="masked_mean"):
-        combine_summaries(paths + paths[1:])
+        summarise(paths + paths[1:], tmp_path / "again.csv")

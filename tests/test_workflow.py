@@ -15,6 +15,7 @@ import time
 from pathlib import Path
 
 import numpy as np
+import pandas as pd
 import pytest
 import xarray as xr
 import yaml
@@ -54,7 +55,7 @@ def store_of(workdir):
 
 def assert_store_complete(store, n):
     ds = xr.open_zarr(store)
-    assert ds.sizes["sample"] == n
+    assert ds.attrs["n_moulds"] == n and ds.sizes["sample"] == sum(ds.attrs["replicas"])
     status = ds["status"].values.astype(str)
     assert (status != "").all(), f"unfinished samples: {np.flatnonzero(status == '')}"
     ok = status == "ok"
@@ -72,9 +73,9 @@ TINY = ("--configfile", str(REPO / "config" / "tiny.yaml"))
 
 def test_end_to_end_tiny(tmp_path):
     run(tmp_path, *TINY)
-    ds = assert_store_complete(store_of(tmp_path), 12)
+    ds = assert_store_complete(store_of(tmp_path), 16)
     inputs = ds["inputs"].values
-    assert inputs.shape == (12, 2, 32, 32)
+    assert inputs.shape == (16 + 4 * 3, 2, 32, 32)  # 4 test moulds with 4 replicas each
     assert not (inputs[:, 0] & inputs[:, 1]).any()  # tether pixels are never mould pixels
     assert ds.attrs["scene"]["name"] == "tiny"
     assert set(ds["split"].values.astype(str)) <= {"train", "val", "test"}
@@ -82,6 +83,20 @@ def test_end_to_end_tiny(tmp_path):
         assert (tmp_path / "results" / "figures" / figure).stat().st_size > 5000
     report = (tmp_path / "results" / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 5  # figures are embedded, not linked
+    # both accuracy tables, with every column the readers consume
+    evaluation = tmp_path / "results" / "evaluation"
+    accuracy = pd.read_csv(evaluation / "accuracy.csv")
+    assert {"method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
+            "field_error_hi"} <= set(accuracy.columns)
+    assert "single simulation" in set(accuracy["method"])
+    statistics = pd.read_csv(evaluation / "statistics.csv")
+    assert {"method", "statistic", "r", "r_ceiling", "bias"} <= set(statistics.columns)
+    # the expected fields are the mean of each test mould's replicas
+    test = [int(m) for m in ds["replicated"].values]
+    mould = test[0]
+    samples = np.flatnonzero(ds["mould"].values == mould)
+    np.testing.assert_allclose(ds["fields_mean"].values[0],
+                               ds["fields"].values[samples].astype(float).mean(axis=0), rtol=1e-5)
     # Nothing left to do: a second run schedules no job.
     assert "Nothing to be done" in run(tmp_path, *TINY).stderr
 
@@ -148,7 +163,8 @@ def test_kill_and_resume(tmp_path):
     summary = {}
     for marker in done_dir.glob("*.json"):
         summary.update(json.loads(marker.read_text()))
-    assert sorted(int(k) for k in summary) == list(range(16))  # none missing, none duplicated
+    moulds = sorted({int(k.split("/")[0]) for k in summary})
+    assert moulds == list(range(16))  # none missing, none duplicated
 
 
 def test_bad_config_stops_with_named_key(tmp_path):

@@ -1,8 +1,16 @@
 """condor: dataset factory and surrogate for cell-laden hydrogels in tethered moulds.
 
-The library is pure: it never imports Snakemake. Modules, one per concept:
-scenes (scene presets), moulds (mould generator), lattice/energy/anneal/minimise/simulate
-(the CONDOR simulator), fields (rasterisation), store (the Zarr dataset), surrogate (PyTorch).
+The library is pure: it never imports Snakemake. docs/architecture.md shows the floors and
+what each module owns. For the dataset: `condor.open_dataset(path)` (condor.dataset).
 """
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name):
+    # `condor.open_dataset` and `condor.dataset` without importing zarr/xarray on `import condor`.
+    if name in ("open_dataset", "dataset"):
+        import condor.dataset as dataset
+
+        return dataset if name == "dataset" else dataset.open_dataset
+    raise AttributeError(f"module 'condor' has no attribute {name!r}")

@@ -1,4 +1,6 @@
-"""The `condor` command line: one subcommand per stage, each a thin call into the library."""
+"""The `condor` command line: one subcommand per stage, each a thin call into the stage layer
+(condor.stages) or the library. User errors print one line and exit with status 2; nothing
+that exists is overwritten without --force."""
 
 from __future__ import annotations
 
@@ -6,6 +8,10 @@ import argparse
 import sys
 from pathlib import Path
 
+import numpy as np
+
+from condor import plots
+from condor.moulds import MouldParams, save_json
 from condor.scenes import PRESETS, get_scene
 
 
@@ -23,6 +29,13 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
+def _positive_int(text: str) -> int:
+    value = _non_negative_int(text)
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {value}")
+    return value
+
+
 def _positive_float(text: str) -> float:
     try:
         value = float(text)
@@ -33,91 +46,106 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _scene_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--scene", default="default", choices=sorted(PRESETS),
+def _scene_arg(parser: argparse.ArgumentParser, default="default") -> None:
+    parser.add_argument("--scene", default=default, choices=sorted(PRESETS),
                         help="scene preset: box, depth, pixels (default: %(default)s)")
 
 
+def _force_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
+
+
+def _new_output(path, force: bool, what: str = "--out") -> Path:
+    """`path` as an output: CLIError when it exists and --force is not given."""
+    path = Path(path)
+    if path.exists() and not force:
+        raise CLIError(f"{what} {str(path)!r} exists; pass --force to overwrite it")
+    if path.parent != Path("") and not path.parent.is_dir():
+        raise CLIError(f"{what} {str(path)!r}: folder {str(path.parent)!r} does not exist")
+    return path
+
+
+# --- dataset stages ----------------------------------------------------------------------------
+
 def cmd_mould(args) -> None:
-    from condor.moulds import MouldParams, draw_mould, generate_mould, save_json, validate_mould
+    from condor.stages.dataset import make_mould
 
     scene = get_scene(args.scene)
-    params = MouldParams(no_tether_fraction=args.no_tether_fraction)
+    params = MouldParams() if args.no_tether_fraction is None else \
+        MouldParams(no_tether_fraction=args.no_tether_fraction)
     params.validate()
-    mould = generate_mould(args.seed, args.id, box=scene.box, params=params,
-                           area_fraction=scene.area_fraction, max_extent=scene.max_extent)
-    validate_mould(mould)
-    if args.out:
-        save_json(mould, args.out)
-    if args.png:
-        from condor.figures import _pyplot
-
-        plt = _pyplot()
-        fig, ax = plt.subplots(figsize=(4, 4))
-        draw_mould(ax, mould)
-        fig.savefig(args.png, dpi=120, bbox_inches="tight")
-        plt.close(fig)
+    out = _new_output(args.out, args.force) if args.out else None
+    png = _new_output(args.png, args.force, "--png") if args.png else None
+    mould = make_mould(scene, args.seed, args.id, params)
+    if out:
+        save_json(mould, out)
+    if png:
+        plots.mould_picture(mould, png)
     print(f"mould {mould.mould_id} (seed {mould.seed}): {mould.symmetry}, order {mould.order}, "
           f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
 
 
+def _user_mould_args(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--l0-um", type=_positive_float, default=None,
+                        help="cell spacing l0 in micrometres, for a drawing in mm or um")
+    parser.add_argument("--units", choices=["l0", "mm", "um"], default=None,
+                        help="units of a drawing that does not state its own")
+    parser.add_argument("--fit", action="store_true",
+                        help="scale the drawing to the training moulds' area (40%% of the box) "
+                             "instead of keeping its drawn size")
+
+
+def _load_mould(args, scene):
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.drawings)."""
+    from condor.drawings import load_mould
+
+    return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+
+
 def cmd_simulate(args) -> None:
-    from condor.moulds import load_json
-    from condor.simulate import simulate
+    from condor.stages.dataset import simulate_mould
 
     scene = get_scene(args.scene)
-    mould = load_json(args.mould)
-    if abs(mould.box - scene.box) > 1e-9:
-        raise CLIError(f"{args.mould} was generated for a {mould.box:g} l0 box, scene "
-                       f"{scene.name!r} has {scene.box:g} l0: pass the matching --scene")
-    result = simulate(mould.polygon, mould.tethers, scene.depth, solver=args.solver,
-                      budget=args.budget, seed=args.seed)
-    result.save(args.out)
-    print(f"{args.out}: {result.status}; {result.n_cells} cells, energy/cell "
+    out = _new_output(args.out, args.force)
+    mould = _load_mould(args, scene)
+    result = simulate_mould(mould, scene, args.solver, args.budget, args.seed)
+    result.save(out)
+    print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
           f"{result.energy_per_cell:.6g}, {result.seconds:.2f} s ({result.solver})")
     if result.status != "ok":
         sys.exit(1)
 
 
 def cmd_rasterise(args) -> None:
-    import numpy as np
-
-    from condor.pipeline import rasterise_result
     from condor.simulate import SimResult
+    from condor.stages.dataset import rasterise_result
 
-    scene = get_scene(args.scene)
     result = SimResult.load(args.simulation)
     if result.status != "ok":
         raise CLIError(f"{args.simulation} is a failed simulation ({result.status}); no fields")
-    fields = rasterise_result(result, scene)
+    recorded = result.info.get("scene", {}).get("name")
+    scene = get_scene(args.scene or recorded or "default")
     out = Path(args.out)
+    if out.suffix not in (".npy", ".png"):
+        raise CLIError(f"--out must end in .npy or .png, got {out}")
+    _new_output(out, args.force)
+    fields = rasterise_result(result, scene)
     if out.suffix == ".npy":
         np.save(out, fields)
-    elif out.suffix == ".png":
-        from condor.fields import FIELD_NAMES
-        from condor.figures import _pyplot
-
-        plt = _pyplot()
-        fig, axes = plt.subplots(2, 4, figsize=(10, 5))
-        for ax, name, image in zip(axes.ravel(), FIELD_NAMES, fields):
-            fig.colorbar(ax.imshow(image, origin="lower"), ax=ax, fraction=0.046)
-            ax.set_title(name)
-            ax.set_xticks([])
-            ax.set_yticks([])
-        fig.tight_layout()
-        fig.savefig(out, dpi=110)
-        plt.close(fig)
     else:
-        raise CLIError(f"--out must end in .npy or .png, got {out}")
-    print(f"{out}: 8 fields at {scene.pixels} px from {result.n_cells} cells")
+        plots.field_panels([(f"{result.n_cells} cells", None, fields)], out)
+    print(f"{out}: 8 fields at {scene.pixels} px (scene {scene.name!r}) from {result.n_cells} cells")
 
 
 def cmd_check_store(args) -> None:
-    from condor.store import check_store
+    from condor.store import check_metadata, check_store
 
+    problems = check_metadata(args.store)
     table = check_store(args.store, deep=args.deep)
     counts = table["state"].value_counts()
     print(f"{args.store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
+    for problem in problems:
+        print(f"  metadata: {problem}")
     for state in ("missing", "pending", "failed", "corrupt"):
         rows = table[table["state"] == state]
         if len(rows):
@@ -127,68 +155,106 @@ def cmd_check_store(args) -> None:
             if state == "failed":
                 for reason, group in rows.groupby("status"):
                     print(f"    {len(group)} x {reason}")
-    if (table["state"] != "ok").any():
+            if state == "corrupt":
+                lost = rows[rows["lost"] != ""]
+                for name, group in lost.groupby("lost"):
+                    print(f"    {len(group)} with no {name} chunk")
+    if problems or (table["state"] != "ok").any():
         sys.exit(1)
 
 
-def _open_store(path):
-    from condor.store import open_dataset
+# --- surrogate stages ---------------------------------------------------------------------------
 
-    return open_dataset(path)
+# condor.surrogate's MODEL_KINDS and PREDICTION_MODES, spelled out so that the parser does
+# not import torch (tests/test_cli_surrogate.py checks they agree).
+MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
+PREDICTION_MODES = ("eval", "batch_stats", "train")
 
 
 def cmd_train(args) -> None:
-    from condor.surrogate.train import train
-    from condor.surrogate.variants import train_config
+    from condor.stages.surrogate import train
 
-    ds = _open_store(args.store)
     settings = {"model": args.model, "base": args.base, "depth": args.depth, "epochs": args.epochs,
                 "batch_size": args.batch_size, "lr": args.lr, "lam": args.lam, "seed": args.seed,
-                "prediction_mode": args.prediction_mode, "num_threads": args.threads,
-                "max_val_samples": args.max_val_samples}
-    cfg = train_config(settings, int(ds.sizes["x"]))
-    checkpoint = Path(args.checkpoint)
-    if args.fresh and checkpoint.exists():
-        checkpoint.unlink()
-    action = "resuming from" if checkpoint.exists() else "writing"
-    print(f"training {cfg.model} on {args.store} ({ds.sizes['x']} px), {action} {checkpoint}",
-          flush=True)
-    history = train(ds, cfg, checkpoint, device=args.device,
-                    log=lambda line: print(line, flush=True))
+                "prediction_mode": args.prediction_mode, "max_val_samples": args.max_val_samples}
+    print(f"training {args.model} on {args.store} into {args.checkpoint}", flush=True)
+    history = train(args.store, settings, args.checkpoint, threads=args.threads,
+                    device=args.device, fresh=args.fresh, restart_on_mismatch=False,
+                    log_line=lambda line: print(line, flush=True))
     seconds = sum(r["seconds"] for r in history)
-    print(f"{checkpoint}: {len(history)} epochs, {seconds:.1f} s in all")
+    print(f"{args.checkpoint}: {len(history)} epochs, {seconds:.1f} s in all")
 
 
 def cmd_evaluate(args) -> None:
-    from condor.surrogate.checkpoint import load_checkpoint
-    from condor.surrogate.evaluate import evaluate, format_correlations, format_summary
+    from condor.stages.surrogate import evaluate
+    from condor.surrogate.evaluate import format_correlations, format_summary
 
-    load_checkpoint(args.checkpoint)  # a missing checkpoint is reported before the store is read
-    ds = _open_store(args.store)
-    result = evaluate(args.checkpoint, ds, out_dir=args.out, split=args.split,
-                      modes=args.modes or None, baselines=not args.no_baselines,
-                      device=args.device)
+    out = Path(args.out)
+    if out.exists() and any(out.iterdir()) and not args.force:
+        raise CLIError(f"--out {str(out)!r} holds files; pass --force to overwrite them")
+    result = evaluate(args.store, args.checkpoint, out, modes=args.modes or None,
+                      device=args.device, baselines=not args.no_baselines, split=args.split)
     summary = result["summary"]
     print(f"{args.split} split, {len(next(iter(result['evaluations'].values())).mae)} moulds; "
-          "mean MAE per field (physical units):")
+          "mean MAE per field:")
     print(format_summary(summary))
     print("Pearson r of whole-mould statistics, simulation vs prediction:")
     print(format_correlations(summary))
-    print(f"tables and figures in {args.out}")
+    print(f"tables and figures in {out}")
 
 
 def cmd_predict(args) -> None:
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
+    out = Path(args.out)
+    if out.suffix.lower() not in (".zarr", ".png"):
+        raise CLIError(f"--out {str(out)!r} must end in .zarr or .png")
+    _refuse_dataset(out)
+    _new_output(out, args.force)
     predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode)
-    inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
+    if Path(args.mould).suffix.lower() in (".json", ".svg", ".dxf"):
+        from condor.drawings import training_domain_check
+        from condor.moulds import input_channels
+
+        scene = _checkpoint_scene(predictor)
+        mould = _load_mould(args, scene)
+        for warning in training_domain_check(mould, scene):
+            print(f"condor predict: warning: {warning}", file=sys.stderr)
+        inputs = input_channels(mould, predictor.native)
+    else:
+        inputs = read_mould_inputs(args.mould, predictor.native, predictor.box)
+    if not inputs.any():
+        raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
     prediction = predictor(inputs)
-    write_prediction(args.out, prediction, inputs, predictor.pixel_size,
+    write_prediction(out, prediction, inputs, predictor.pixel_size,
                      {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
-                      "mode": predictor.mode})
-    print(f"{args.out}: 8 fields at {predictor.native} px, predicted N_c = "
+                      "mode": predictor.mode}, overwrite=args.force)
+    print(f"{out}: 8 fields at {predictor.native} px, predicted N_c = "
           f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
 
+
+def _checkpoint_scene(predictor):
+    """The scene preset a checkpoint was trained on (its grid: box and pixels)."""
+    for scene in PRESETS.values():
+        if scene.pixels == predictor.native and predictor.box is not None and \
+                abs(scene.box - predictor.box) < 1e-9 * scene.box:
+            return scene
+    raise CLIError(f"checkpoint {predictor.path!r} was trained on a {predictor.native} px grid "
+                   f"of box {predictor.box} l0, which is no scene preset: give the mould as a "
+                   "(2, H, W) .npy or .png instead")
+
+
+def _refuse_dataset(path: Path) -> None:
+    """A prediction is never written over a dataset store, --force or not."""
+    from condor.store import FORMAT
+
+    meta = path / "zarr.json"
+    if meta.is_file() and FORMAT in meta.read_text(errors="replace"):
+        raise CLIError(f"--out {str(path)!r} is a condor dataset store; a prediction never "
+                       "replaces one (choose another path)")
+
+
+# --- the parser ---------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="condor", description=__doc__)
@@ -199,67 +265,60 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--id", type=_non_negative_int, default=0, help="mould id (default 0)")
     p.add_argument("--out", help="write the geometry as JSON here")
     p.add_argument("--png", help="write a picture here")
-    p.add_argument("--no-tether-fraction", type=float, default=100 / 6500,
-                   help="share of moulds generated with no tethers (default: the paper's 100/6500)")
+    p.add_argument("--no-tether-fraction", type=float, default=None,
+                   help="share of moulds generated with no tethers (default: the workflow's, "
+                        "the paper's 100 in 6,500)")
     _scene_arg(p)
+    _force_arg(p)
     p.set_defaults(func=cmd_mould)
 
-    p = sub.add_parser("simulate", help="simulate one mould (JSON from `condor mould`)")
-    p.add_argument("mould", help="mould JSON")
+    p = sub.add_parser("simulate", help="simulate one mould (JSON, SVG or DXF)")
+    p.add_argument("mould", help="mould: the generator's JSON, a minimal JSON (outline and "
+                   "tethers), an SVG or a DXF drawing (docs/user_moulds.md)")
     p.add_argument("--out", required=True, help="result file (.npz)")
-    p.add_argument("--solver", default="hybrid", choices=["anneal", "minimise", "hybrid"])
+    p.add_argument("--solver", default=None, choices=["anneal", "minimise", "hybrid"],
+                   help="default: the simulator's (hybrid)")
     p.add_argument("--budget", type=_positive_float, default=None,
                    help="solver budget (anneal: moves per cell); default: the solver's own")
     p.add_argument("--seed", type=_non_negative_int, default=0, help="simulation seed")
     _scene_arg(p)
+    _user_mould_args(p)
+    _force_arg(p)
     p.set_defaults(func=cmd_simulate)
 
     p = sub.add_parser("rasterise", help="one simulation result to the 8 fields (.npy or .png)")
     p.add_argument("simulation", help="result file from `condor simulate`")
     p.add_argument("--out", required=True, help="fields.npy (8, y, x) or fields.png")
-    _scene_arg(p)
+    _scene_arg(p, default=None)
+    _force_arg(p)
     p.set_defaults(func=cmd_rasterise)
 
     p = sub.add_parser("check-store", help="list missing, pending, failed and corrupt samples")
     p.add_argument("store", nargs="?", default="results/dataset.zarr")
-    p.add_argument("--deep", action="store_true", help="also decode every finished sample's fields")
+    p.add_argument("--deep", action="store_true",
+                   help="also decode every finished sample (checksums, NaN)")
     p.set_defaults(func=cmd_check_store)
-    _surrogate_parsers(sub)
-    return parser
 
-
-def _device_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--device", default=None,
-                        help="torch device, e.g. cpu or cuda (default: CUDA when present)")
-
-
-# condor.surrogate's MODEL_KINDS and PREDICTION_MODES, spelled out so that the parser does
-# not import torch (tests/test_cli_surrogate.py checks they agree).
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1")
-PREDICTION_MODES = ("eval", "batch_stats", "train")
-
-
-def _surrogate_parsers(sub) -> None:
-    p = sub.add_parser("train", help="train a surrogate on a dataset store (resumes a checkpoint)")
+    p = sub.add_parser("train", help="train a surrogate on a dataset store (resumes its epochs)")
     p.add_argument("--store", required=True, help="dataset store (.zarr) from the workflow")
-    p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt); resumed if present")
+    p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt); training resumes "
+                   "from .NAME.training.pt beside it")
     p.add_argument("--model", default="unet_l1", choices=MODEL_KINDS,
                    help="pix2pix (the paper's, 256 px), unet_gan or unet_l1 (default: %(default)s)")
-    p.add_argument("--epochs", type=_non_negative_int, default=None, help="epochs in all (default 10)")
-    p.add_argument("--batch-size", type=_non_negative_int, default=None, help="default 1 (the paper's)")
+    p.add_argument("--epochs", type=_positive_int, default=None, help="epochs in all (default 10)")
+    p.add_argument("--batch-size", type=_positive_int, default=None, help="default 1 (the paper's)")
     p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default 2e-4)")
     p.add_argument("--lam", type=_positive_float, default=None, help="L1 weight of GAN models (1000)")
-    p.add_argument("--base", type=_non_negative_int, default=None, help="U-Net first-level width (32)")
-    p.add_argument("--depth", type=_non_negative_int, default=None,
+    p.add_argument("--base", type=_positive_int, default=None, help="U-Net first-level width (32)")
+    p.add_argument("--depth", type=_positive_int, default=None,
                    help="U-Net levels (default: down to a 4x4 bottleneck)")
     p.add_argument("--seed", type=_non_negative_int, default=None, help="training seed (0)")
     p.add_argument("--prediction-mode", default=None, choices=PREDICTION_MODES,
                    help="BatchNorm/dropout mode for validation and prediction (eval)")
-    p.add_argument("--max-val-samples", type=_non_negative_int, default=None,
+    p.add_argument("--max-val-samples", type=_positive_int, default=None,
                    help="validate on at most this many samples (default: all)")
-    p.add_argument("--threads", type=_non_negative_int, default=None,
-                   help="torch CPU threads (default 1)")
-    p.add_argument("--fresh", action="store_true", help="delete the checkpoint and start over")
+    p.add_argument("--threads", type=_positive_int, default=None, help="torch CPU threads (default 1)")
+    p.add_argument("--fresh", action="store_true", help="discard earlier epochs and start over")
     _device_arg(p)
     p.set_defaults(func=cmd_train)
 
@@ -272,16 +331,26 @@ def _surrogate_parsers(sub) -> None:
                    help="prediction modes to evaluate (default: the checkpoint's and train)")
     p.add_argument("--no-baselines", action="store_true", help="skip the baselines")
     _device_arg(p)
+    _force_arg(p)
     p.set_defaults(func=cmd_evaluate)
 
     p = sub.add_parser("predict", help="predict the 8 fields of one mould with a checkpoint")
-    p.add_argument("mould", help="mould JSON from `condor mould`, or (2, H, W) .npy / 2-channel .png")
+    p.add_argument("mould", help="mould: JSON, SVG or DXF (as for simulate), or its input "
+                   "channels as a (2, H, W) .npy / 2-channel .png")
     p.add_argument("--checkpoint", required=True, help="checkpoint from `condor train`")
     p.add_argument("--out", required=True, help="fields.zarr (raw and normalised) or fields.png")
     p.add_argument("--mode", default=None, choices=PREDICTION_MODES,
                    help="BatchNorm/dropout mode (default: the checkpoint's)")
+    _user_mould_args(p)
     _device_arg(p)
+    _force_arg(p)
     p.set_defaults(func=cmd_predict)
+    return parser
+
+
+def _device_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default=None,
+                        help="torch device, e.g. cpu or cuda (default: CUDA when present)")
 
 
 def main(argv: list[str] | None = None) -> None:

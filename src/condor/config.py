@@ -1,59 +1,247 @@
-"""The workflow configuration as library objects (pure: no Snakemake).
+"""The workflow configuration: one frozen `Config`, built once from the validated YAML.
 
-The workflow validates `config/config.yaml` against `config/config.schema.yaml` with
-Snakemake's `validate`; the CLI uses `load_config`, which applies the same schema with
-jsonschema, so both stop on the same bad key or value with a message naming it.
+The JSON schema (`config.schema.yaml`, shipped inside the package) is the only place where
+defaults live: `Config.from_dict` fills them, validates, checks what a schema cannot express
+(a split that leaves no training mould, a U-Net that does not fit the grid, a CUDA device on a
+machine without one) and freezes the result. The workflow (`workflow/rules/common.smk`) and
+the CLI build it the same way, so both stop on the same bad key with a one-line message.
+
+`data_config()` is the part of a config that defines the data in a results folder (scene,
+seed, moulds, split, solver, replicas, batching): a results folder is never reused for
+another one (condor.folder).
 """
 
 from __future__ import annotations
 
 import json
+import math
+from dataclasses import dataclass
 from pathlib import Path
+from types import MappingProxyType
+from typing import Mapping
 
+import jsonschema
+import yaml
+
+from condor.anneal import T_INIT, T_RATIO
+from condor.energy import DELTA
+from condor.lattice import SHELL_KBAR
+from condor.moulds import MouldParams
 from condor.scenes import Scene, get_scene
+from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.minimise import FTOL
+from condor.store import SPLITS, StoreSpec, assign_splits
 
-SCHEMA_PATH = Path(__file__).resolve().parents[2] / "config" / "config.schema.yaml"
+SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
 
-# The CONDOR model parameters every dataset records (DESIGN.md, "The physical model").
-MODEL_PARAMETERS = {
-    "delta": 0.3,
-    "kbar": [1.0, 0.4, 0.2, 0.2],
-    "t_init": 0.0625,
-    "t_ratio": 1e7,
+# The CONDOR model parameters every dataset records, from the physics modules themselves.
+MODEL_PARAMETERS = MappingProxyType({
+    "delta": DELTA, "kbar": list(SHELL_KBAR), "t_init": T_INIT, "t_ratio": T_RATIO,
     "lattice": "fcc",
-}
+})
 
 
 class ConfigError(ValueError):
     """A configuration key or value is invalid; the message names it."""
 
 
-def load_config(path: str | Path, schema_path: str | Path = SCHEMA_PATH) -> dict:
-    """Read a YAML config, fill defaults and validate it against the schema."""
-    import yaml
+def _frozen(value):
+    """Read-only view of nested dicts and lists (a frozen config stays frozen)."""
+    if isinstance(value, Mapping):
+        return MappingProxyType({k: _frozen(v) for k, v in value.items()})
+    if isinstance(value, list):
+        return tuple(_frozen(v) for v in value)
+    return value
 
-    path = Path(path)
+
+def _plain(value):
+    """The inverse of _frozen: JSON-safe dicts and lists."""
+    if isinstance(value, Mapping):
+        return {k: _plain(v) for k, v in value.items()}
+    if isinstance(value, tuple):
+        return [_plain(v) for v in value]
+    return value
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated workflow configuration (every default filled from the schema).
+
+    Sections are read-only mappings: `config.simulation["solver"]`, `config.report["moulds"]`.
+    """
+
+    scene: Scene
+    seed: int
+    n_moulds: int
+    batch_size: int
+    results: Path
+    moulds: Mapping
+    split: Mapping
+    simulation: Mapping
+    surrogate: Mapping
+    report: Mapping
+    raw: Mapping  # the validated dict, defaults filled (what a checkpoint or report records)
+
+    # --- building ------------------------------------------------------------------------
+
+    @classmethod
+    def from_dict(cls, config: Mapping, check_surrogate: bool = True) -> "Config":
+        """Validate a config dict (defaults filled) and freeze it; ConfigError names the key.
+        `check_surrogate=False` skips building the surrogate variants (it imports torch), for
+        the jobs of a workflow whose config was checked in full when it started."""
+        filled = json.loads(json.dumps(_plain(config)))  # a copy: the caller's dict is kept
+        schema = load_schema()
+        _fill_defaults(filled, schema)
+        errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(filled), key=str)
+        if errors:
+            err = errors[0]
+            where = "/".join(str(p) for p in err.absolute_path) or "(top level)"
+            raise ConfigError(f"config key {where}: {err.message}")
+        try:
+            scene = get_scene(filled["scene"], **filled["scene_overrides"])
+        except ValueError as err:
+            raise ConfigError(f"config key scene: {err}") from err
+        made = cls(scene=scene, seed=filled["seed"], n_moulds=filled["n_moulds"],
+                   batch_size=filled["batch_size"], results=Path(filled["results"]),
+                   moulds=_frozen(filled["moulds"]), split=_frozen(filled["split"]),
+                   simulation=_frozen(filled["simulation"]),
+                   surrogate=_frozen(filled["surrogate"]), report=_frozen(filled["report"]),
+                   raw=_frozen(filled))
+        made._check_consistency(check_surrogate)
+        return made
+
+    @classmethod
+    def load(cls, path: str | Path) -> "Config":
+        """Read a YAML config file and build the Config."""
+        path = Path(path)
+        try:
+            config = yaml.safe_load(path.read_text()) or {}
+        except (OSError, yaml.YAMLError) as err:
+            raise ConfigError(f"cannot read config {path}: {err}") from err
+        if not isinstance(config, dict):
+            raise ConfigError(f"config {path} must be a mapping of keys, got {type(config).__name__}")
+        return cls.from_dict(config)
+
+    @classmethod
+    def default(cls, **changes) -> "Config":
+        """The schema's defaults (the embedded default scene), with top-level `changes`."""
+        return cls.from_dict(changes)
+
+    def to_dict(self) -> dict:
+        return _plain(self.raw)
+
+    # --- derived -------------------------------------------------------------------------
+
+    def mould_params(self) -> MouldParams:
+        """Generator parameters: MouldParams' own defaults, with the keys the config sets."""
+        given = {k: v for k, v in self.moulds.items() if k in MouldParams.__dataclass_fields__}
+        params = MouldParams(**given)
+        params.validate()
+        return params
+
+    def splits(self) -> tuple[str, ...]:
+        """The split of every mould (deterministic for the seed)."""
+        return assign_splits(self.n_moulds, self.split["test"], self.split["val_fraction"],
+                             self.seed)
+
+    def replicas(self) -> tuple[int, ...]:
+        """Simulations per mould, from its split."""
+        counts = self.simulation["replicas"]
+        return tuple(int(counts[s]) for s in self.splits())
+
+    def batches(self) -> list[range]:
+        """Mould ids per job: consecutive runs of `batch_size`."""
+        n, size = self.n_moulds, self.batch_size
+        return [range(start, min(start + size, n)) for start in range(0, n, size)]
+
+    def test_moulds(self) -> list[int]:
+        """Mould ids of the test split, in id order."""
+        return [i for i, s in enumerate(self.splits()) if s == "test"]
+
+    def solver(self) -> tuple[str, float]:
+        """The simulation's solver and budget, None resolved to the simulator's defaults."""
+        solver = self.simulation["solver"] or DEFAULT_SOLVER
+        budget = self.simulation["budget"]
+        return solver, float(DEFAULT_BUDGET[solver] if budget is None else budget)
+
+    def data_config(self) -> dict:
+        """What defines the data in a results folder: a folder built for one of these never
+        takes samples made with another (condor.folder checks it before any job runs)."""
+        return {"scene": self.scene.to_dict(), "seed": self.seed, "n_moulds": self.n_moulds,
+                "batch_size": self.batch_size,
+                "no_tether_fraction": self.mould_params().no_tether_fraction,
+                "split": _plain(self.split), "solver": self.solver()[0],
+                "budget": self.solver()[1], "ftol": FTOL,
+                "replicas": _plain(self.simulation["replicas"])}
+
+    def store_spec(self) -> StoreSpec:
+        scene = self.scene
+        return StoreSpec(
+            n_moulds=self.n_moulds, pixels=scene.pixels, seed=self.seed, split=self.splits(),
+            replicas=self.replicas(),
+            attrs={"scene": scene.to_dict(), "pixel_size": scene.pixel_size,
+                   "sigma": scene.sigma, "model": dict(MODEL_PARAMETERS),
+                   "mould_params": {"no_tether_fraction": self.mould_params().no_tether_fraction},
+                   "solver": self.solver()[0], "solver_budget": self.solver()[1],
+                   "data_config": self.data_config()},
+        )
+
+    # --- checks a schema cannot express ---------------------------------------------------
+
+    def _check_consistency(self, check_surrogate: bool = True) -> None:
+        try:
+            labels = self.splits()
+        except ValueError as err:
+            raise ConfigError(f"config key split: {err}") from err
+        if "train" not in labels:
+            raise ConfigError(
+                f"config key split/val_fraction: {self.split['val_fraction']} of the "
+                f"{self.n_moulds - self.split['test']} non-test moulds leaves none for training")
+        try:
+            self.mould_params()
+        except ValueError as err:
+            raise ConfigError(f"config key moulds: {err}") from err
+        if check_surrogate:
+            self._check_surrogate()
+        scene = self.scene
+        if not (math.isfinite(scene.pixel_size) and scene.pixels >= 8):
+            raise ConfigError(f"config key scene_overrides: {scene.pixels} px is too coarse")
+
+    def _check_surrogate(self) -> None:
+        # Imported here: torch costs seconds to import, and only a surrogate section needs it.
+        from condor.surrogate.variants import train_config, workflow_variants
+
+        try:
+            variants = workflow_variants(self)
+        except ValueError as err:
+            raise ConfigError(str(err)) from err
+        for name, settings in variants.items():
+            try:
+                train_config(settings, self.scene.pixels)
+            except ValueError as err:
+                raise ConfigError(f"config key surrogate/models/{name}: {err}") from err
+        device = self.surrogate["device"]
+        if device is not None and variants:
+            check_device(device, "config key surrogate/device")
+
+
+def check_device(device: str, what: str) -> None:
+    """ConfigError when torch cannot use `device` here (e.g. 'cuda' without a GPU)."""
+    import torch
+
     try:
-        config = yaml.safe_load(path.read_text()) or {}
-    except (OSError, yaml.YAMLError) as err:
-        raise ConfigError(f"cannot read config {path}: {err}") from err
-    return validate_config(config, schema_path)
+        kind = torch.device(device).type
+    except (RuntimeError, TypeError) as err:
+        raise ConfigError(f"{what}: {device!r} is not a torch device ({err})") from err
+    if kind == "cuda" and not torch.cuda.is_available():
+        raise ConfigError(f"{what}: {device!r} asked for, but this machine has no CUDA device "
+                          "(use null for CPU)")
+    if kind not in ("cpu", "cuda", "mps"):
+        raise ConfigError(f"{what}: device type {kind!r} is not supported (cpu or cuda)")
 
 
-def validate_config(config: dict, schema_path: str | Path = SCHEMA_PATH) -> dict:
-    """Validate `config` (filling schema defaults in place); ConfigError names the bad key."""
-    import jsonschema
-    import yaml
-
-    schema = yaml.safe_load(Path(schema_path).read_text())
-    _fill_defaults(config, schema)
-    errors = sorted(jsonschema.Draft202012Validator(schema).iter_errors(config), key=str)
-    if errors:
-        err = errors[0]
-        where = "/".join(str(p) for p in err.absolute_path) or "(top level)"
-        raise ConfigError(f"config key {where}: {err.message}")
-    check_consistency(config)
-    return config
+def load_schema() -> dict:
+    return yaml.safe_load(SCHEMA_PATH.read_text())
 
 
 def _fill_defaults(config: dict, schema: dict) -> None:
@@ -64,55 +252,5 @@ def _fill_defaults(config: dict, schema: dict) -> None:
             _fill_defaults(config[key], sub)
 
 
-def check_consistency(config: dict) -> None:
-    """Constraints a JSON schema cannot express."""
-    n_test = config.get("split", {}).get("test", 0)
-    if n_test >= config["n_moulds"]:
-        raise ConfigError(
-            f"config key split/test: {n_test} test moulds leaves none for training "
-            f"out of n_moulds = {config['n_moulds']}"
-        )
-    scene_of(config)  # raises for a bad override combination
-
-
-def scene_of(config: dict) -> Scene:
-    try:
-        return get_scene(config["scene"], **config.get("scene_overrides", {}))
-    except ValueError as err:
-        raise ConfigError(f"config key scene: {err}") from err
-
-
-def mould_params_of(config: dict):
-    from condor.moulds import MouldParams
-
-    params = MouldParams(no_tether_fraction=config.get("moulds", {}).get("no_tether_fraction", 100 / 6500))
-    params.validate()
-    return params
-
-
-def batches(config: dict) -> list[range]:
-    """Mould ids per job: consecutive runs of `batch_size`."""
-    n, size = config["n_moulds"], config.get("batch_size", 8)
-    return [range(start, min(start + size, n)) for start in range(0, n, size)]
-
-
-def store_spec(config: dict):
-    from condor.store import StoreSpec, assign_splits
-
-    scene = scene_of(config)
-    split = config.get("split", {})
-    return StoreSpec(
-        n_samples=config["n_moulds"],
-        pixels=scene.pixels,
-        seed=config["seed"],
-        split=assign_splits(config["n_moulds"], split.get("test", 24), split.get("val_fraction", 0.1), config["seed"]),
-        attrs={
-            "scene": scene.to_dict(),
-            "pixel_size": scene.pixel_size,
-            "sigma": scene.sigma,
-            "model": MODEL_PARAMETERS,
-            "mould_params": {"no_tether_fraction": config.get("moulds", {}).get("no_tether_fraction", 100 / 6500)},
-            "solver": config.get("simulation", {}).get("solver", "hybrid"),
-            "solver_budget": config.get("simulation", {}).get("budget"),
-        },
-    )
+__all__ = ["Config", "ConfigError", "MODEL_PARAMETERS", "SCHEMA_PATH", "SPLITS", "check_device",
+           "load_schema"]

@@ -30,6 +30,8 @@ import shapely
 from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, mapping, shape
 
+from condor.lattice import HALF
+
 SYMMETRIES: tuple[str, ...] = (
     "random_rotation",
     "single_mirror",
@@ -39,6 +41,8 @@ SYMMETRIES: tuple[str, ...] = (
 )
 REMOVALS: tuple[str, ...] = ("none", "circular", "symmetric_bars", "rotated_bars", "random_bars")
 NO_TETHERS = "no_tethers"  # removal label of the tether-free subset
+USER = "user"  # symmetry and removal label of a mould the generator did not make
+MIN_WIDTH_L0 = 1.0  # a user mould must be at least one cell (l0) wide everywhere it joins
 
 # The paper's Table "Probabilities of tether removal selection", raw; n/a -> 0.0.
 REMOVAL_FREQUENCIES: dict[str, dict[str, float]] = {
@@ -75,7 +79,8 @@ class MouldParams:
     """Knobs of the generator. Canvas lengths are in unit-canvas widths (the initial shape
     lives in [0, 1]^2); "box" lengths are fractions of the box side."""
 
-    no_tether_fraction: float = 100 / 6500  # paper: 100 tether-free moulds in 6,500
+    # The paper: 100 tether-free moulds in 6,500 (0.01538...), as the dataset contract rounds it.
+    no_tether_fraction: float = 0.0154
     min_tethers: int = 4  # tethered moulds keep at least this many
     convex_rounding: float = 0.25  # probability of rounding convex corners
     concave_rounding: float = 0.75  # probability of rounding concave corners
@@ -148,28 +153,45 @@ class MouldParams:
             raise ValueError(f"MouldParams.offset_max = {self.offset_max} must be <= 0.5")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Mould:
-    """One mould design. Lengths in l0, box coordinates [0, box]^2."""
+    """One mould design. Lengths in l0, box coordinates [0, box]^2, y up.
 
-    mould_id: int
-    seed: int
-    symmetry: str  # one of SYMMETRIES
-    order: int  # rotation order (cyclic/dihedral), copies (random_rotation), 2 or 4 (mirrors)
-    removal: str  # one of REMOVALS, or "no_tethers" for the tether-free subset
+    A *generated* mould (symmetry in SYMMETRIES) carries the generator's record (seed,
+    order, removal, origin, unpruned tethers, rounding, outline kind) and obeys its exact
+    area rule. Any other mould is a *user* mould (symmetry USER unless a caller labels it
+    otherwise): it needs only box, polygon and tethers, and validate_mould checks its
+    geometry alone (docs/user_moulds.md).
+    """
+
+    mould_id: int = 0
+    seed: int | None = None  # dataset seed of a generated mould; None for a user mould
+    symmetry: str = USER  # one of SYMMETRIES, or USER (any other label: a user mould)
+    order: int = 1  # rotation order (cyclic/dihedral), copies (random_rotation), 2 or 4
+    # (mirrors); 1 for a user mould (no symmetry assumed)
+    removal: str = USER  # one of REMOVALS, "no_tethers" for the tether-free subset, or USER
     box: float  # box side, l0
     polygon: Polygon  # footprint, tethers not subtracted
     tethers: np.ndarray  # (n, 3): x, y, radius
-    origin: tuple[float, float]  # symmetry origin (random rotation: centre of area)
-    unpruned_tethers: np.ndarray  # (m, 3) all duplicated tethers before any pruning
-    area_fraction: float = 0.40  # polygon area / box area
+    origin: tuple[float, float] | None = None  # symmetry origin (random rotation: centre of
+    # area); None for a user mould
+    unpruned_tethers: np.ndarray | None = None  # (m, 3) all duplicated tethers before any
+    # pruning; None for a user mould (nothing was pruned)
+    area_fraction: float | None = None  # the generator's target polygon area / box area;
+    # None for a user mould (it has no area rule)
     convex_rounded: bool = False
     concave_rounded: bool = False
-    outline: str = "convex_hull"  # initial shape: "convex_hull" or "simple_polygon"
+    outline: str | None = None  # initial shape: "convex_hull" or "simple_polygon"; None
+    # for a user mould
 
     @property
     def n_tethers(self) -> int:
         return int(len(self.tethers))
+
+    @property
+    def is_generated(self) -> bool:
+        """True for a mould of the generator (its symmetry is one of SYMMETRIES)."""
+        return self.symmetry in SYMMETRIES
 
     def tether_disks(self, quad_segs: int = 16):
         """Tether disks as one (multi)polygon (a polygonal approximation), l0."""
@@ -183,19 +205,21 @@ class Mould:
         return self.polygon.difference(self.tether_disks()) if self.n_tethers else self.polygon
 
     def to_dict(self) -> dict:
-        """JSON-safe dict (plain floats, lists); `from_dict` inverts it exactly."""
+        """JSON-safe dict (plain floats, lists, None); `from_dict` inverts it exactly."""
         return {
             "mould_id": int(self.mould_id),
-            "seed": int(self.seed),
+            "seed": None if self.seed is None else int(self.seed),
             "symmetry": self.symmetry,
             "order": int(self.order),
             "removal": self.removal,
             "box": float(self.box),
             "polygon": _polygon_to_lists(self.polygon),
             "tethers": np.asarray(self.tethers, dtype=float).reshape(-1, 3).tolist(),
-            "origin": [float(self.origin[0]), float(self.origin[1])],
-            "unpruned_tethers": np.asarray(self.unpruned_tethers, float).reshape(-1, 3).tolist(),
-            "area_fraction": float(self.area_fraction),
+            "origin": None if self.origin is None else [float(self.origin[0]),
+                                                        float(self.origin[1])],
+            "unpruned_tethers": None if self.unpruned_tethers is None else
+            np.asarray(self.unpruned_tethers, float).reshape(-1, 3).tolist(),
+            "area_fraction": None if self.area_fraction is None else float(self.area_fraction),
             "convex_rounded": bool(self.convex_rounded),
             "concave_rounded": bool(self.concave_rounded),
             "outline": self.outline,
@@ -203,16 +227,29 @@ class Mould:
 
     @classmethod
     def from_dict(cls, d: dict) -> "Mould":
+        """Inverse of `to_dict`. Only box, polygon and tethers are required; every other
+        field takes its default (a user mould) when absent or null."""
+        if not isinstance(d, dict):
+            raise InvalidMouldError(f"a mould is a JSON object, got {type(d).__name__}")
         known = {f.name for f in fields(cls)}
         unknown = set(d) - known
         if unknown:
             raise InvalidMouldError(f"unknown mould field(s) {sorted(unknown)}")
-        values = dict(d)
+        missing = [name for name in _REQUIRED_FIELDS if d.get(name) is None]
+        if missing:
+            raise InvalidMouldError(f"missing mould field(s) {missing}")
+        values = {k: v for k, v in d.items() if v is not None}
         values["polygon"] = _polygon_from_lists(d["polygon"])
         values["tethers"] = np.asarray(d["tethers"], dtype=np.float64).reshape(-1, 3)
-        values["unpruned_tethers"] = np.asarray(d["unpruned_tethers"], np.float64).reshape(-1, 3)
-        values["origin"] = (float(d["origin"][0]), float(d["origin"][1]))
+        if "unpruned_tethers" in values:
+            values["unpruned_tethers"] = np.asarray(values["unpruned_tethers"],
+                                                    np.float64).reshape(-1, 3)
+        if "origin" in values:
+            values["origin"] = (float(d["origin"][0]), float(d["origin"][1]))
         return cls(**values)
+
+
+_REQUIRED_FIELDS = ("box", "polygon", "tethers")
 
 
 def _polygon_to_lists(polygon) -> dict:
@@ -622,11 +659,15 @@ def generate_mould(seed: int, mould_id: int, box: float = 62.5,
 def validate_mould(mould: Mould, rtol: float = 1e-6) -> None:
     """Raise InvalidMouldError naming the first broken rule of the mould contract.
 
-    Checks: a single valid Polygon inside the box, area = area_fraction * box^2 (to `rtol`),
-    finite numbers, tethers of shape (n, 3) with positive radii, fully inside the polygon
-    and the box, and no two tethers overlapping.
+    Every mould: a single valid Polygon inside the box, finite numbers, tethers of shape
+    (n, 3) with positive radii, fully inside the polygon and the box, no two overlapping.
+    A generated mould (`is_generated`): area = area_fraction * box^2 (to `rtol`), exactly
+    as the generator makes it. A user mould has no area rule (an area_fraction it states
+    must match its polygon, to `rtol`) and is checked by geometry instead: every part is at
+    least MIN_WIDTH_L0 (one cell) wide where it joins the rest, and the tether posts leave
+    room for mobile cells, so that condor.simulate.simulate accepts it (docs/user_moulds.md).
     """
-    name = f"mould {mould.mould_id}"
+    name = f"mould {mould.mould_id}" if mould.is_generated or mould.mould_id else "the mould"
     polygon, box = mould.polygon, float(mould.box)
     if not (math.isfinite(box) and box > 0):
         raise InvalidMouldError(f"{name}: box = {box!r} must be positive and finite")
@@ -646,16 +687,29 @@ def validate_mould(mould: Mould, rtol: float = 1e-6) -> None:
         raise InvalidMouldError(f"{name}: polygon bounds {polygon.bounds} leave the box "
                                 f"[0, {box}]^2")
     fraction = polygon.area / box**2
-    if not math.isclose(fraction, mould.area_fraction, rel_tol=rtol):
+    if mould.is_generated and mould.area_fraction is None:
+        raise InvalidMouldError(f"{name}: a generated ({mould.symmetry}) mould needs its "
+                                "area_fraction")
+    if mould.area_fraction is not None and not math.isclose(fraction, mould.area_fraction,
+                                                            rel_tol=rtol):
+        hint = (f" (the generator's rule for a {mould.symmetry} mould; a mould of your own "
+                "leaves out symmetry and area_fraction)" if mould.is_generated else
+                " (area_fraction is the generator's target: leave it out)")
         raise InvalidMouldError(f"{name}: area fraction {fraction:.6f} is not "
-                                f"{mould.area_fraction}")
+                                f"{mould.area_fraction}{hint}")
     tethers = np.asarray(mould.tethers, dtype=float)
     if tethers.ndim != 2 or tethers.shape[1] != 3:
         raise InvalidMouldError(f"{name}: tethers have shape {tethers.shape}, expected (n, 3)")
     if not np.isfinite(tethers).all():
         raise InvalidMouldError(f"{name}: tethers hold NaN or infinite values")
-    if len(tethers) == 0:
-        return
+    if len(tethers):
+        _check_tethers(name, polygon, tethers, box, slack)
+    if not mould.is_generated:
+        _check_room(name, polygon, tethers)
+
+
+def _check_tethers(name: str, polygon: Polygon, tethers: np.ndarray, box: float,
+                   slack: float) -> None:
     x, y, radius = tethers.T
     if (radius <= 0).any():
         raise InvalidMouldError(f"{name}: tether radius {radius.min()} is not positive")
@@ -674,6 +728,35 @@ def validate_mould(mould: Mould, rtol: float = 1e-6) -> None:
         i = int(np.flatnonzero(overlap)[0])
         raise InvalidMouldError(f"{name}: tether {i} at {tethers[i].tolist()} overlaps "
                                 "another tether")
+
+
+# Margin (l0) added to half a cell in _check_room: covers the polygonal approximation of
+# buffers (below 0.01 l0 at quad_segs=64 for radii up to 30 l0) so that the check errs on
+# the side of refusing.
+_ROOM_MARGIN = 0.02
+
+
+def _check_room(name: str, polygon: Polygon, tethers: np.ndarray) -> None:
+    """A user mould's geometry checks beyond the contract, so that the lattice has cells.
+
+    Lattice sites, projected on the plane, form a square grid of side HALF (two or more
+    layers, i.e. depth >= HALF: every scene), so every disk of radius HALF / sqrt(2) = l0/2
+    holds a site. A region that contains such a disk somewhere therefore holds a cell."""
+    half_cell = MIN_WIDTH_L0 / 2 + _ROOM_MARGIN
+    core = polygon.buffer(-half_cell, quad_segs=64)
+    parts = list(getattr(core, "geoms", [core])) if not core.is_empty else []
+    if not parts:
+        raise InvalidMouldError(f"{name}: the polygon is narrower than a cell "
+                                f"({MIN_WIDTH_L0:g} l0) everywhere")
+    if len(parts) > 1:
+        raise InvalidMouldError(f"{name}: a neck narrower than a cell ({MIN_WIDTH_L0:g} l0) "
+                                f"splits the polygon into {len(parts)} parts")
+    if len(tethers):
+        # posts fix every site within max(radius, HALF) of a tether centre (condor.lattice)
+        posts = shapely.buffer(shapely.points(tethers[:, :2]),
+                               np.maximum(tethers[:, 2], HALF) + half_cell, quad_segs=64)
+        if core.difference(shapely.union_all(posts)).is_empty:
+            raise InvalidMouldError(f"{name}: the tethers leave no room for a mobile cell")
 
 
 # --------------------------------------------------------------------------- rasters, files
@@ -710,52 +793,7 @@ def load_json(path) -> Mould:
     return mould
 
 
-# --------------------------------------------------------------------------- figures, tables
-
-
-def draw_mould(ax, mould: Mould, title: bool = True) -> None:
-    """Draw the footprint (filled, holes open) and tethers on a matplotlib Axes."""
-    from matplotlib.patches import Circle, PathPatch
-    from matplotlib.path import Path as MplPath
-
-    rings = [mould.polygon.exterior, *mould.polygon.interiors]
-    vertices, codes = [], []
-    for ring in rings:
-        xy = np.asarray(ring.coords)
-        vertices.append(xy)
-        codes.append([MplPath.MOVETO] + [MplPath.LINETO] * (len(xy) - 2) + [MplPath.CLOSEPOLY])
-    path = MplPath(np.concatenate(vertices), np.concatenate(codes))
-    ax.add_patch(PathPatch(path, facecolor="#9ecae1", edgecolor="#08519c", lw=0.8))
-    for x, y, r in np.asarray(mould.tethers).reshape(-1, 3):
-        ax.add_patch(Circle((x, y), r, facecolor="#d62728", edgecolor="none"))
-    ax.set_xlim(0, mould.box)
-    ax.set_ylim(0, mould.box)
-    ax.set_aspect("equal")
-    ax.set_xticks([])
-    ax.set_yticks([])
-    if title:
-        ax.set_title(f"{mould.symmetry}, {mould.order}, {mould.removal}", fontsize=7)
-
-
-def gallery(moulds: list[Mould], path, ncols: int = 6) -> None:
-    """Save a PNG grid of `moulds` to `path`."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    if not moulds:
-        raise ValueError("moulds is empty: nothing to draw")
-    ncols = max(1, min(ncols, len(moulds)))
-    nrows = math.ceil(len(moulds) / ncols)
-    fig, axes = plt.subplots(nrows, ncols, figsize=(2.2 * ncols, 2.3 * nrows), squeeze=False)
-    for ax in axes.flat[len(moulds):]:
-        ax.axis("off")
-    for ax, mould in zip(axes.flat, moulds):
-        draw_mould(ax, mould)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+# --------------------------------------------------------------------------- tables
 
 
 def regime_table(moulds) -> "pandas.DataFrame":  # noqa: F821

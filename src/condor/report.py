@@ -1,10 +1,12 @@
 """The run's report as one self-contained HTML file (pure library: no Snakemake).
 
-Building blocks (`figure`, `table`, `paragraph`, `Section`, `render`) make any report: PNGs
-are embedded as base64 data URIs, tables come from CSV files or DataFrames, every figure and
-table has a caption, and a table of contents links the sections. `condor_report` assembles
-the workflow's report from its output files (`ReportInputs`); a section whose inputs are
-missing or empty raises ReportError instead of showing a placeholder.
+Building blocks (`figure`, `table`, `paragraph`, `folded`, `Section`, `render`) make any
+report: PNGs are embedded as base64 data URIs, tables come from CSV files or DataFrames, every
+figure and table has a caption, long galleries fold away (<details>), and a table of contents
+links the sections. `condor_report` assembles the workflow's report from its output files
+(named by REPORT_INPUTS): one screen of summary first (the dataset and its failures, the
+cost-against-error chart, the surrogate's statistics beside the paper's), details after. A
+section whose inputs are missing or empty raises ReportError instead of showing a placeholder.
 """
 
 from __future__ import annotations
@@ -30,6 +32,10 @@ td,th{border:1px solid #ddd;padding:.2em .5em;text-align:right}th{background:#f4
 td:first-child,th:first-child{text-align:left}nav li{margin:.15em 0}
 .scroll{overflow-x:auto}
 .meta{color:#666;font-size:.85em}
+details{margin:.8em 0;border:1px solid #e4e4e4;border-radius:4px;padding:.3em .7em}
+summary{cursor:pointer;font-weight:600;color:#08519c}
+.verdict{background:#f5f9ff;border-left:4px solid #08519c;padding:.5em .9em;margin:1em 0}
+.grid{display:flex;flex-wrap:wrap;gap:1.5em;align-items:flex-start}.grid>div{flex:1 1 420px}
 """
 
 
@@ -75,6 +81,22 @@ def _format(value, digits: int) -> str:
             return "" if np.isnan(value) else str(value)
         return f"{value:.{digits}g}"
     return html.escape(str(value))
+
+
+def folded(title: str, blocks: list[str], open_: bool = False) -> str:
+    """Blocks folded under a one-line summary (HTML <details>)."""
+    flag = " open" if open_ else ""
+    return (f"<details{flag}><summary>{html.escape(title)}</summary>" + "".join(blocks)
+            + "</details>")
+
+
+def verdict(text: str) -> str:
+    """A highlighted paragraph: what the numbers mean, in plain words."""
+    return f'<p class="verdict">{html.escape(text)}</p>'
+
+
+def side_by_side(*blocks: str) -> str:
+    return '<div class="grid">' + "".join(f"<div>{b}</div>" for b in blocks) + "</div>"
 
 
 def table(data, caption: str, columns=None, digits: int = 4, index: bool = False,
@@ -130,135 +152,241 @@ def write_report(path, title: str, sections: list[Section], meta: str = "") -> P
 
 # --- the workflow's report ---------------------------------------------------------------
 
-@dataclass
-class ReportInputs:
-    """The workflow outputs the report shows (paths). `evaluations`: {variant: folder of
-    rule evaluate (summary.csv, <variant>_<mode>_correlations.csv, figures/)}, plus
-    "baselines"."""
-
-    gallery: Path
-    regimes: Path
-    samples: Path
-    dataset_summary: Path
-    speed_accuracy: Path
-    speed_accuracy_summary: Path
-    speed_accuracy_chart: Path
-    convergence: Path
-    convergence_summary: Path
-    convergence_chart: Path
-    stability: Path
-    cost_accuracy: Path
-    cost_accuracy_chart: Path
-    surrogate_summary: Path
-    evaluations: dict = field(default_factory=dict)
-    store: Path | None = None
-
-
-def _dataset_section(inp: ReportInputs, config: dict) -> Section:
-    summary = pd.read_csv(_existing(inp.dataset_summary, "dataset summary"))
-    status = summary["status"].fillna("missing").astype(str)
-    counts = summary.assign(status=status).groupby(["split", "status"]).size()
-    scene = config.get("scene")
-    text = (f"Scene {scene!r}, {config.get('n_moulds')} moulds (seed {config.get('seed')}), "
-            f"solver {config.get('simulation', {}).get('solver', 'hybrid')!r}; "
-            f"{int((status == 'ok').sum())} samples finished ok.")
-    blocks = [paragraph(text), table(counts.reset_index(name="samples"),
-                                     "Samples by split and simulation status.")]
-    if inp.store is not None:
-        blocks.append(table(store_statistics(inp.store), "Per-sample cells, solver CPU "
-                            "seconds (one core) and energy per cell over the finished samples."))
-    return Section("dataset", "Dataset", blocks)
+# Every file the workflow report reads, by the key the report rule names it with.
+REPORT_INPUTS = {
+    "dataset_summary": "per-sample table of the finished store (CSV, condor.stages.dataset)",
+    "regimes": "mould regime and removal frequencies beside the paper's table (CSV)",
+    "gallery": "mould gallery (PNG)",
+    "samples": "example samples: mould and 8 fields (PNG)",
+    "accuracy": "every method against the expected fields (results/evaluation/accuracy.csv)",
+    "statistics": "r, ceiling and bias per method and statistic (results/evaluation/statistics.csv)",
+    "accuracy_chart": "cost per mould against error (PNG)",
+    "ladder": "the anneal ladder (CSV)",
+    "convergence": "scene convergence study (CSV)",
+    "convergence_chart": "scene convergence chart (PNG)",
+    "stability": "stability cases with every solver (CSV)",
+    "surrogate_summary": "the paper's measures per variant and baseline (CSV)",
+    "evaluations": "evaluation folders, one per variant and one for the baselines",
+    "histories": "training history per variant (CSV)",
+}
+# Statistics as the report names them.
+STATISTIC_LABELS = {"mean_P": "mean P", "n_P_gt_0.2": "N(P > 0.2)", "mean_T": "mean T",
+                    "mean_T_norm": "mean T (normalised)", "mean_Sx2": "mean Sx2",
+                    "mean_Sx2_norm": "mean Sx2 (normalised)", "mean_Sy2": "mean Sy2",
+                    "mean_Sy2_norm": "mean Sy2 (normalised)"}
 
 
-def store_statistics(store) -> pd.DataFrame:
-    """Median, min, max and total of cells, solver seconds and energy per cell over the ok
-    samples of a dataset store."""
-    from condor.store import open_dataset
-
-    ds = open_dataset(store)
-    ok = ds["status"].values.astype(str) == "ok"
-    if not ok.any():
-        raise ReportError(f"store {str(store)!r} has no finished sample")
-    cells = ds["n_cells"].values[ok].astype(float)
-    values = {"cells": cells, "solver CPU seconds": ds["solver_seconds"].values[ok].astype(float),
-              "energy per cell": ds["energy"].values[ok].astype(float) / cells}
-    return pd.DataFrame([{"quantity": k, "median": np.median(v), "min": v.min(), "max": v.max(),
-                          "total": v.sum() if "seconds" in k else np.nan}
-                         for k, v in values.items()])
+def _csv(inputs, key: str) -> pd.DataFrame:
+    return pd.read_csv(_existing(inputs[key], REPORT_INPUTS[key]))
 
 
-def _moulds_section(inp: ReportInputs) -> Section:
-    return Section("moulds", "Moulds", [
-        figure(inp.gallery, "Mould gallery: footprints (grey) and tethers (dark), in the box."),
-        table(pd.read_csv(_existing(inp.regimes, "regime table")),
-              "Observed regime shares and tether-removal frequencies per regime, each beside "
-              "the paper's (columns *_paper; the paper's table, rows renormalised).", digits=3),
+def _interval(value, lo, hi, digits: int = 3) -> str:
+    if not np.isfinite(value):
+        return ""
+    return f"{value:.{digits}g} [{lo:.{digits}g}, {hi:.{digits}g}]"
+
+
+def _percent(value, lo, hi) -> str:
+    if not np.isfinite(value):
+        return ""
+    return f"{100 * value:+.1f}% [{100 * lo:+.1f}, {100 * hi:+.1f}]"
+
+
+def accuracy_verdict(accuracy: pd.DataFrame) -> str:
+    """The cost-against-error chart in plain words: each surrogate and the unconverged anneals
+    against one simulation (the noise ceiling)."""
+    rows = accuracy.set_index("method")
+    if "single simulation" not in rows.index:
+        return "No replicas: the noise ceiling cannot be measured."
+    c = rows.loc["single simulation"]
+    words = [f"One simulation of the dataset's solver scatters by {c.field_error:.3g} "
+             f"[{c.field_error_lo:.3g}, {c.field_error_hi:.3g}] about the expected fields "
+             f"(RMS, normalised fields; {int(c.n_moulds)} test moulds)."]
+    for row in accuracy[accuracy["family"] == "surrogate"].itertuples():
+        if row.field_error_hi < c.field_error_lo:
+            where = "closer to the average organisation than one simulation is"
+        elif row.field_error_lo > c.field_error_hi:
+            where = "farther from the average organisation than one simulation is"
+        else:
+            where = "as close to the average organisation as one simulation, within the intervals"
+        words.append(f"The surrogate {row.method} ({_interval(row.field_error, row.field_error_lo, row.field_error_hi)}, "
+                     f"{row.cpu_s_per_mould * 1e3:.3g} ms per mould) is {where}.")
+    anneals = accuracy[accuracy["family"] == "anneal"]
+    unconverged = [r.method for r in anneals.itertuples() if r.field_error_lo > c.field_error_hi]
+    if unconverged:
+        words.append(f"Unconverged anneals ({', '.join(unconverged)}) are farther than the "
+                     "ceiling beyond their intervals.")
+    return " ".join(words)
+
+
+def statistics_table(statistics: pd.DataFrame, method: str) -> pd.DataFrame:
+    """One method's statistics: r [interval], ceiling, bias [interval], n, the paper's r."""
+    rows = statistics[statistics["method"] == method]
+    return pd.DataFrame({
+        "statistic": [STATISTIC_LABELS.get(s, s) for s in rows["statistic"]],
+        "r [95%]": [_interval(r.r, r.r_lo, r.r_hi) for r in rows.itertuples()],
+        "ceiling r": rows["r_ceiling"].to_numpy(),
+        "bias [95%]": [_percent(r.bias, r.bias_lo, r.bias_hi) for r in rows.itertuples()],
+        "n": rows["n"].to_numpy(),
+        "paper r": [f"{'=' if r.paper_relation == '=' else '>'} {r.paper_r:g}"
+                    for r in rows.itertuples()],
+    })
+
+
+def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:
+    rows = statistics[statistics["method"] == method]
+    if rows.empty:
+        return f"No statistics for {method}."
+    n = int(rows["n"].max())
+    if not bool(rows["informative"].all()):
+        return (f"Only {n} test moulds: a Pearson r over so few moulds is not informative "
+                "(two moulds always give r = +-1); read the biases and the field errors.")
+    biased = [STATISTIC_LABELS.get(r.statistic, r.statistic) for r in rows.itertuples()
+              if abs(r.bias) > 0.01]
+    short = [STATISTIC_LABELS.get(r.statistic, r.statistic) for r in rows.itertuples()
+             if r.r < min(0.98, r.r_ceiling - 0.01)]
+    words = [f"{method} on {n} test moulds against the replica means:"]
+    words.append(f"biased by more than 1% on {', '.join(biased)}." if biased
+                 else "no statistic is biased by more than 1%.")
+    words.append(f"r below both 0.98 and its ceiling - 0.01 on {', '.join(short)}." if short
+                 else "every r is at least 0.98 or within 0.01 of its ceiling.")
+    return " ".join(words)
+
+
+def ladder_verdict(ladder: pd.DataFrame) -> str:
+    """Whether the longest rung's ensemble matches the dataset solver's."""
+    rungs = ladder[ladder["rung"] != "dataset solver"].dropna(subset=["distance_to_dataset"])
+    if rungs.empty:
+        return "The ladder has no finished rung."
+    longest = rungs[rungs["budget"] == rungs["budget"].max()]
+    far = longest[longest["distance_to_dataset"] > 0.5 * longest["spread"]]
+    budget = f"{rungs['budget'].max():g}"
+    if far.empty:
+        return (f"On every ladder mould, the anneal of {budget} moves per cell (then FIRE) lands "
+                "within half of one simulation's scatter of the dataset solver's expected fields: "
+                "at this budget the fast solver samples the same states.")
+    ratio = (far["distance_to_dataset"] / far["spread"]).median()
+    return (f"On {len(far)} of {len(longest)} ladder moulds the anneal of {budget} moves per cell "
+            f"(then FIRE) differs from the dataset solver's expected fields by more than half a "
+            f"simulation's scatter (median distance {ratio:.2g} x the scatter): the dataset "
+            "solver's expected fields carry that bias against the slower anneal.")
+
+
+def _dataset_line(config, summary: pd.DataFrame) -> str:
+    ok = summary["state"].eq("ok")
+    moulds = summary["mould"].nunique() if "mould" in summary else len(summary)
+    replicas = config.simulation["replicas"]
+    return (f"Scene {config.scene.name!r} ({config.scene.box:g} l0 box, {config.scene.pixels} px), "
+            f"{moulds} moulds (seed {config.seed}), solver {config.solver()[0]!r}; replicas per "
+            f"mould: train {replicas['train']}, val {replicas['val']}, test {replicas['test']}. "
+            f"{int(ok.sum())} of {len(summary)} simulations finished ok, "
+            f"{int(summary['state'].eq('failed').sum())} failed.")
+
+
+def _failures(summary: pd.DataFrame) -> list[str]:
+    failed = summary[summary["state"] == "failed"]
+    if failed.empty:
+        return [paragraph("No simulation failed.")]
+    reasons = failed.assign(reason=failed["status"].astype(str).str.split(":").str[0])
+    counts = reasons.groupby(["split", "reason"]).size().reset_index(name="simulations")
+    return [table(counts, "Failed simulations by split and reason (recorded, never written "
+                          "as samples).")]
+
+
+def _summary_section(config, inp) -> Section:
+    summary = _csv(inp, "dataset_summary")
+    accuracy = _csv(inp, "accuracy")
+    statistics = _csv(inp, "statistics")
+    first = config.surrogate["variants"][0] if config.surrogate["variants"] else None
+    blocks = [paragraph(_dataset_line(config, summary)), *_failures(summary),
+              figure(inp["accuracy_chart"], "Cost per mould against the error of every method "
+                     "against the expected fields of the same test moulds (the mean of their "
+                     "replicas, with the finite-replica noise removed); bars: 95% bootstrap "
+                     "intervals over moulds; line and band: one simulation (the noise ceiling)."),
+              verdict(accuracy_verdict(accuracy))]
+    if first is not None:
+        blocks += [table(statistics_table(statistics, first),
+                         f"{first}: whole-mould statistics against the replica means (r, 95% "
+                         "interval, n), the ceiling r a perfect predictor reaches against one "
+                         "simulation, the bias (median of predicted / simulated - 1), and the "
+                         "paper's r."),
+                   verdict(statistics_verdict(statistics, first))]
+    return Section("summary", "At a glance", blocks)
+
+
+def _accuracy_section(inp) -> Section:
+    accuracy = _csv(inp, "accuracy")
+    statistics = _csv(inp, "statistics")
+    main = accuracy[["method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
+                     "field_error_hi", "field_error_plain", "n_moulds"]]
+    per_field = accuracy[["method"] + [c for c in accuracy.columns if c.startswith("error_")]]
+    methods = [m for m in dict.fromkeys(statistics["method"])]
+    return Section("accuracy", "Accuracy against the expected organisation", [
+        paragraph("The truth of every figure is a mould's expected fields: the mean over its "
+                  "replicas (the same mould simulated with several seeds). Errors are RMS over "
+                  "the 8 normalised fields and the pixels, with the replicas' own noise removed "
+                  "(condor.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
+                  "over moulds."),
+        table(main, "Every method: CPU seconds per mould, field error against the expected "
+                    "fields [95% interval], the plain error and the moulds scored.", digits=3),
+        folded("Field error per field", [table(per_field, "RMS error per field against the "
+                                                          "expected fields (noise removed).",
+                                               digits=3)]),
+        folded("Whole-mould statistics of every method", [
+            table(statistics_table(statistics, m), f"{m}: r against the replica means, "
+                  "ceiling, bias, n, the paper's r.") for m in methods]),
     ])
 
 
-def _samples_section(inp: ReportInputs) -> Section:
-    return Section("samples", "Example samples", [
-        figure(inp.samples, "Example samples from the store: the mould (grey: mould, black: "
-                            "tethers) and its 8 fields P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz."),
+def _simulator_section(inp) -> Section:
+    ladder = _csv(inp, "ladder")
+    convergence = _csv(inp, "convergence")
+    stability = _csv(inp, "stability")
+    held = int(stability["as_expected"].sum())
+    ladder_cols = [c for c in ("mould", "rung", "runs", "energy_per_cell", "energy_min",
+                               "energy_max", "distance_to_dataset", "spread", "accept_pos",
+                               "inverted_fraction") if c in ladder.columns]
+    conv_cols = [c for c in ("study", "mould", "value", "layers", "n_cells", "cpu_s",
+                             "change_P", "change_T", "change_Sx2", "change_Sz2", "noise_P",
+                             "noise_T", "noise_Sx2", "justified") if c in convergence.columns]
+    return Section("simulator", "Simulator: the anneal ladder, convergence and stability", [
+        table(ladder[ladder_cols], "The anneal ladder: each rung (anneal budget in moves per "
+              "cell, then FIRE) on test moulds, beside the dataset solver's replicas: energy per "
+              "cell (median, range), the distance between the rung's and the dataset solver's "
+              "expected fields (RMS, noise removed) and the scatter of one simulation within the "
+              "rung.", digits=3),
+        verdict(ladder_verdict(ladder)),
+        figure(inp["convergence_chart"], "Systematic change of the fields (noise removed) "
+               "against depth and box size; dashed: half the scatter of one simulation."),
+        table(convergence[conv_cols], "Scene convergence: a reduction is justified when its "
+              "systematic change stays below half of one simulation's scatter on P, T, Sx2, "
+              "Sy2 and Sz2.", digits=3),
+        folded(f"Stability cases: {held} of {len(stability)} outcomes as promised", [
+            table(stability[[c for c in ("case", "solver", "budget", "expect", "status",
+                                         "as_expected", "what") if c in stability.columns]],
+                  "Outcome per case and solver: status ('ok', the reason a result is flagged, "
+                  "or 'rejected: ...' for input that raised ValueError).", digits=3)]),
     ])
 
 
-def _simulator_section(inp: ReportInputs) -> Section:
-    sweep = pd.read_csv(_existing(inp.speed_accuracy, "speed/accuracy table"))
-    text = (f"{sweep['mould'].nunique()} test moulds, each simulated by every method and by "
-            "two references: the long anneal followed by FIRE to force 1e-5 (the reference "
-            "every error is measured against) and the minimiser from the lattice to the same "
-            "tolerance (its distance to the reference is the floor between two converged "
-            "states). CPU seconds on one core.")
-    return Section("simulator", "Simulator: speed against accuracy", [
-        paragraph(text),
-        figure(inp.speed_accuracy_chart, "Energy per cell above the lowest found (left) and "
-               "field MAE against the long-anneal reference (right) against CPU seconds, for "
-               "anneal budgets (moves per cell), the minimiser, the hybrid and looser tolerances."),
-        table(inp.speed_accuracy_summary, "Medians over moulds per method: CPU seconds, energy "
-              "above the best found (rel_energy) and above the reference (rel_energy_ref), "
-              "field MAE against the reference.",
-              columns=["role", "method", "runs", "n_cells", "seconds", "rel_energy",
-                       "rel_energy_ref", "field_mae", "ok"]),
-    ])
-
-
-def _convergence_section(inp: ReportInputs) -> Section:
-    summary = pd.read_csv(_existing(inp.convergence_summary, "convergence summary"))
-    columns = [c for c in ["study", "value", "baseline", "n_cells", "seconds", "rel_P", "rel_T",
-                           "rel_Sx2", "rel_Sz2", "rel_mean", "noise", "within_noise"]
-               if c in summary.columns]
-    return Section("convergence", "Scene convergence study", [
-        paragraph("How much the fields change with the mould depth (number of FCC layers) and "
-                  "with the box size, compared with the change from re-simulating the same "
-                  "configuration with another seed (the noise; baseline rows)."),
-        figure(inp.convergence_chart, "Relative MAE of the fields (per channel, normalised "
-               "per cell) against the deepest / largest configuration; dashed lines: the same "
-               "configuration simulated with another seed."),
-        table(summary, "Median relative MAE per study and value; within_noise: the change is "
-              "at most 1.25 x the seed-to-seed noise.", columns=columns, digits=3),
-    ])
-
-
-def _surrogate_section(inp: ReportInputs) -> Section:
-    summary = pd.read_csv(_existing(inp.surrogate_summary, "surrogate summary"))
-    blocks = [table(summary, "Every surrogate variant and baseline on the test split: mean MAE "
-                             "per field, Pearson r per whole-mould statistic, prediction "
-                             "seconds per mould.", digits=3)]
-    for name, folder in inp.evaluations.items():
-        folder = Path(folder)
-        for path in sorted(folder.glob("*_correlations.csv")):
-            method = path.name.removesuffix("_correlations.csv")
-            blocks.append(table(path, f"{method}: Pearson r of simulated against predicted "
-                                      "whole-mould statistics on the test moulds, beside the "
-                                      "paper's (= 0.881 for mean density, > 0.98 otherwise).",
-                                digits=3))
-        figures = sorted((folder / "figures").glob("*.png"))
+def _surrogate_section(config, inp) -> Section:
+    summary = _csv(inp, "surrogate_summary")
+    blocks = [table(summary, "The paper's measures on the test split, every variant and "
+                             "baseline: mean MAE per field, Pearson r per whole-mould statistic, "
+                             "prediction seconds per mould.", digits=3)]
+    for path in inp["histories"]:
+        history = pd.read_csv(_existing(path, "training history"))
+        last = history.tail(1)
+        blocks.append(table(last, f"{Path(path).stem}: the last epoch of training "
+                                  f"({len(history)} epochs in all).", digits=4))
+    for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
+        figures = sorted(folder.glob("*.png"))
         if not figures:
-            raise ReportError(f"no evaluation figures in {str(folder / 'figures')!r}")
-        for path in figures:
-            blocks.append(figure(path, _evaluation_caption(name, path.stem)))
-    return Section("surrogate", "Surrogate evaluation", blocks)
+            raise ReportError(f"no evaluation figures in {str(folder)!r}")
+        name = folder.parent.name
+        blocks.append(folded(f"Evaluation figures: {name}",
+                             [figure(p, _evaluation_caption(name, p.stem)) for p in figures]))
+    return Section("surrogate", "Surrogate: the paper's measures and figures", blocks)
 
 
 def _evaluation_caption(name: str, stem: str) -> str:
@@ -267,61 +395,60 @@ def _evaluation_caption(name: str, stem: str) -> str:
     elif stem.endswith("statistics"):
         what = "simulated against predicted whole-mould statistics, with Pearson r"
     elif stem.endswith("best") or stem.endswith("worst"):
-        what = ("the best / worst test moulds for one field: simulation, prediction, "
-                "difference")
+        what = "the best / worst test moulds for one field: simulation, prediction, difference"
     else:
         what = "evaluation figure"
     return f"{name} ({stem}): {what}."
 
 
-def _cost_section(inp: ReportInputs) -> Section:
-    table_df = pd.read_csv(_existing(inp.cost_accuracy, "cost/accuracy table"))
-    return Section("cost", "Cost per mould against error, every method", [
-        paragraph("Every way of answering 'what fields does this mould give' on the same test "
-                  "moulds, against the same long-anneal reference: the long anneal itself, "
-                  "short anneals, the minimiser, the hybrid, each surrogate variant and the "
-                  "baselines. Cost: CPU seconds per mould on one core (surrogates: one torch "
-                  "thread, one mould per call). Shaded: the paper's 24-36 core-hours per "
-                  "simulation; dashed: its ~0.1 s per prediction."),
-        figure(inp.cost_accuracy_chart, "Median field MAE (normalised fields, mean over the 8 "
-               "channels) against median CPU seconds per mould; bars: range over moulds."),
-        table(table_df, "Per method: moulds, median (min, max) CPU seconds per mould and field "
-                        "MAE against the reference.", digits=3),
+def store_statistics(store) -> pd.DataFrame:
+    """Median, min, max and total of cells, solver CPU seconds and energy per cell over the ok
+    samples of a dataset store."""
+    from condor.store import open_store
+
+    ds = open_store(store)
+    ok = ds["status"].values.astype(str) == "ok"
+    if not ok.any():
+        raise ReportError(f"store {str(store)!r} has no finished sample")
+    cells = ds["n_cells"].values[ok].astype(float)
+    values = {"cells": cells, "solver CPU seconds": ds["solver_seconds"].values[ok].astype(float),
+              "energy per cell": ds["energy"].values[ok].astype(float) / cells,
+              "largest residual force": ds["max_force"].values[ok].astype(float)}
+    return pd.DataFrame([{"quantity": k, "median": np.nanmedian(v), "min": np.nanmin(v),
+                          "max": np.nanmax(v), "total": np.nansum(v) if "seconds" in k else np.nan}
+                         for k, v in values.items() if np.isfinite(v).any()])
+
+
+def _dataset_section(inp, store) -> Section:
+    return Section("dataset", "Dataset and moulds", [
+        table(store_statistics(store), "Per simulation: cells, solver CPU seconds (one core), "
+              "energy per cell and the largest residual force, over the finished samples."),
+        table(_csv(inp, "regimes"), "Observed regime shares and tether-removal frequencies per "
+              "regime, each beside the paper's (columns *_paper).", digits=3),
+        folded("Mould gallery", [figure(inp["gallery"], "Mould gallery: footprints (blue) and "
+                                                        "tethers (red), in the box.")]),
+        folded("Example samples", [figure(inp["samples"], "Example samples: the mould (grey: "
+                                          "mould, black: tethers) and its 8 fields.")]),
     ])
 
 
-def _stability_section(inp: ReportInputs) -> Section:
-    df = pd.read_csv(_existing(inp.stability, "stability table"))
-    columns = [c for c in ["case", "solver", "budget", "expect", "status", "as_expected", "what"]
-               if c in df.columns]
-    held = int(df["as_expected"].sum()) if "as_expected" in df else 0
-    return Section("stability", "Stability: failure cases and what each method does", [
-        paragraph(f"Each hard input the tests construct, run with every solver: {held} of "
-                  f"{len(df)} outcomes as the design promises (a flagged status, a rejected "
-                  "input with a message, or a valid result)."),
-        table(df, "Outcome per case and solver: status ('ok', the reason the result is "
-                  "flagged, or 'rejected: ...' for input that raised ValueError) and what "
-                  "happened.", columns=columns, digits=3),
-    ])
-
-
-def condor_sections(inp: ReportInputs, config: dict) -> list[Section]:
-    """The workflow report's sections, in order."""
-    return [_dataset_section(inp, config), _moulds_section(inp), _samples_section(inp),
-            _simulator_section(inp), _convergence_section(inp), _surrogate_section(inp),
-            _cost_section(inp), _stability_section(inp)]
-
-
-def condor_report(inp: ReportInputs, config: dict, out_html) -> Path:
-    """Write the workflow report for `config` to `out_html` (one self-contained file)."""
+def condor_report(config, inputs, store, out_html) -> Path:
+    """Write the workflow report for `config` from `inputs` (a mapping with every key of
+    REPORT_INPUTS) and the dataset `store`, to `out_html` (one self-contained file)."""
     from condor import __version__
 
+    inputs = dict(inputs.items())  # a Snakemake Namedlist or a dict
+    missing = [k for k in REPORT_INPUTS if k not in inputs]
+    if missing:
+        raise ReportError(f"report inputs lack {missing}")
+    sections = [_summary_section(config, inputs), _accuracy_section(inputs),
+                _simulator_section(inputs), _surrogate_section(config, inputs),
+                _dataset_section(inputs, store)]
     stamp = datetime.datetime.now().isoformat(timespec="seconds")
-    meta = (f"condor {__version__}; scene {config.get('scene')}; {config.get('n_moulds')} moulds; "
-            f"results {config.get('results', 'results')}; written {stamp}")
-    return write_report(out_html, "condor: dataset, simulator and surrogate report",
-                        condor_sections(inp, config), meta)
-
+    meta = (f"condor {__version__}; scene {config.scene.name}; {config.n_moulds} moulds; "
+            f"results {config.results}; written {stamp}")
+    return write_report(out_html, "condor: dataset, simulator and surrogate report", sections,
+                        meta)
 
 # --- checking that it renders --------------------------------------------------------------
 

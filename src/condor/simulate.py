@@ -41,6 +41,7 @@ from condor.energy import DELTA, cell_tension, lattice_energy, random_orientatio
 from condor.lattice import Lattice, build_lattice, signed_volumes
 
 SOLVERS = ("anneal", "minimise", "hybrid")
+DEFAULT_SOLVER = "hybrid"
 DEFAULT_BUDGET = {"anneal": 1.0e3, "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0}
 ESCAPE_TOL = 0.25  # l0
 FOLD_FRACTION = 0.01  # of tetrahedra
@@ -87,12 +88,24 @@ class SimResult:
 
     @classmethod
     def load(cls, path) -> "SimResult":
-        with np.load(Path(path), allow_pickle=False) as data:
-            meta = json.loads(str(data["meta"]))
-            return cls(
-                positions=data["positions"], orientations=data["orientations"],
-                fixed=data["fixed"], tension=data["tension"], **meta,
-            )
+        """Read a result file; ValueError naming the file when it is truncated or foreign."""
+        path = Path(path)
+        if path.is_dir():
+            raise ValueError(f"{path} is a directory, not a simulation result (.npz)")
+        try:
+            with np.load(path, allow_pickle=False) as data:
+                meta = json.loads(str(data["meta"]))
+                result = cls(positions=data["positions"], orientations=data["orientations"],
+                             fixed=data["fixed"], tension=data["tension"], **meta)
+        except FileNotFoundError:
+            raise
+        except Exception as err:  # zipfile, KeyError, JSON and dataclass errors alike
+            raise ValueError(f"{path} is not a readable condor simulation result "
+                             f"({type(err).__name__}: {err})") from err
+        n = len(result.positions)
+        if any(np.shape(a)[:1] != (n,) for a in (result.orientations, result.fixed, result.tension)):
+            raise ValueError(f"{path}: per-cell arrays disagree in length (truncated?)")
+        return result
 
 
 def warm_up() -> None:
@@ -111,19 +124,21 @@ def warm_up() -> None:
     _WARM = True
 
 
-def simulate(polygon, tethers, depth: float, solver: str = "hybrid",
+def simulate(polygon, tethers, depth: float, solver: str | None = DEFAULT_SOLVER,
              budget: float | None = None, seed: int = 0, ftol: float | None = None) -> SimResult:
     """Simulate one mould (polygon and tethers (n, 3) x, y, radius in l0; depth in l0).
 
     ftol: the minimiser's force tolerance, kappa0 l0 (None: minimise.FTOL); ignored by "anneal".
+    solver None: DEFAULT_SOLVER.
     """
+    solver = solver or DEFAULT_SOLVER
     _check_solver(solver, budget, ftol)
     lattice = build_lattice(polygon, tethers, depth)  # validates the rest
     orientations = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
     return simulate_lattice(lattice, lattice.positions, orientations, solver, budget, seed, ftol)
 
 
-def simulate_lattice(lattice: Lattice, positions, orientations, solver: str = "hybrid",
+def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | None = DEFAULT_SOLVER,
                      budget: float | None = None, seed: int = 0,
                      ftol: float | None = None) -> SimResult:
     """Run a solver on `lattice` from a given start state (positions, orientations (N, 3)).
@@ -132,6 +147,7 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str = "h
     studies that start elsewhere (a folded or NaN state in `condor.stability`). The start
     energy (for the runaway check) is that of the given state.
     """
+    solver = solver or DEFAULT_SOLVER
     _check_solver(solver, budget, ftol)
     seed = int(seed)
     warm_up()

@@ -1,37 +1,115 @@
-# Config validation and helpers shared by every rule.
-from snakemake.utils import validate
+# The Config (validated once), the results folder's checks, paths, and the helpers the rules
+# use. Rules only declare: inputs, outputs, params, resources and a script calling one stage.
+import sys
+import time
+from pathlib import Path
 
-from condor import config as condor_config
+from condor.config import Config, ConfigError
+from condor.folder import FolderError, RunLock, check_folder, store_gaps, store_path
 
-validate(config, schema="../../config/config.schema.yaml")
-condor_config.check_consistency(config)
+try:
+    CONFIG = Config.from_dict(config)
+    check_folder(CONFIG)
+except (ConfigError, FolderError) as err:
+    sys.exit(f"condor: {err}")  # one line, no traceback, nothing run
 
-R = config["results"]
-STORE = f"{R}/dataset.zarr"
-# The store's root metadata appears (atomically) once the store exists; per-sample writes
-# never touch it, so downstream jobs are not re-triggered by them.
-STORE_READY = f"{STORE}/zarr.json"
-BATCHES = condor_config.batches(config)
+R = str(CONFIG.results)
+STORE = str(store_path(R))
+# init_store's output: the store exists and matches the config. The store itself is not a
+# Snakemake output on purpose: Snakemake deletes outputs before re-running a job, and
+# --forcerun init_store must never delete samples.
+STORE_MANIFEST = f"{R}/dataset.json"
+BATCHES = CONFIG.batches()
 BATCH_IDS = [f"{b:04d}" for b in range(len(BATCHES))]
-# Software for --software-deployment-method conda (the README venv is the usual route).
-CONDA_ENV = "../envs/condor.yaml"
+REPLICAS = CONFIG.replicas()
+CONDA_ENV = "../envs/condor.yaml"  # software for --software-deployment-method conda
 FINAL_TARGETS = []  # each stage file appends the outputs `all` needs
 
 
 wildcard_constraints:
     batch=r"\d{4}",
-
-
-def evaluation_tables(method_prefix):
-    """The per-method CSV tables `condor.surrogate.evaluate` writes into one folder."""
-    return [f"{method_prefix}_{table}.csv" for table in ("mae", "correlations")]
+    mould=r"\d+",
 
 
 def batch_ids(wildcards):
     return list(BATCHES[int(wildcards.batch)])
 
 
+def evaluation_tables(prefix):
+    """The per-method CSV tables the surrogate evaluation writes into one folder."""
+    return [f"{prefix}_{table}.csv" for table in ("mae", "correlations")]
+
+
+def report_settings(*keys):
+    """Report settings as params: changing one reruns exactly the jobs that use it."""
+    return {k: CONFIG.to_dict()["report"][k] for k in keys}
+
+
+def report_inputs(wildcards):
+    """Every file the report reads, by the key condor.report.REPORT_INPUTS names it with."""
+    return {
+        "dataset_summary": rules.dataset.output[0],
+        "regimes": rules.gallery.output.regimes,
+        "gallery": rules.gallery.output.gallery,
+        "samples": rules.sample_figure.output[0],
+        "accuracy": rules.accuracy.output.accuracy,
+        "statistics": rules.accuracy.output.statistics,
+        "accuracy_chart": rules.accuracy.output.chart,
+        "ladder": rules.ladder.output[0],
+        "convergence": rules.convergence.output.table,
+        "convergence_chart": rules.convergence.output.chart,
+        "stability": rules.stability.output[0],
+        "surrogate_summary": rules.surrogate_summary.output[0],
+        "evaluations": [*expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
+                        f"{EVALUATION}/baselines/figures"],
+        "histories": expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
+    }
+
+
+def moulds_of_batch(mould):
+    """The moulds JSON of the batch that holds `mould`."""
+    return f"{R}/moulds/batch_{int(mould) // CONFIG.batch_size:04d}.json"
+
+
+# --- repairs: a flag file claims a batch is done but the store lost its samples ---------------
+# The main process compares the flags with the store (a listing, no decompression) and gives
+# each stale job a fresh marker input, so Snakemake reruns exactly those batches (and, by
+# mtime, what follows them). `snakemake -n` shows the repairs.
+REPAIR = {"init_store": False, "moulds": set(), "simulate": set(), "fields": set()}
+NONCE = str(time.time_ns())
+if workflow.is_main_process and Path(STORE_MANIFEST).exists():
+    if not Path(STORE).exists():
+        REPAIR["init_store"] = True
+    else:
+        GAPS = store_gaps(STORE)
+        for _b, _ids in enumerate(BATCHES):
+            _bid, _ids = f"{_b:04d}", set(_ids)
+            if Path(f"{R}/moulds/batch_{_bid}.json").exists() and GAPS["inputs"] & _ids:
+                REPAIR["moulds"].add(_bid)
+            fields_done = Path(f"{R}/fields/batch_{_bid}.json").exists()
+            if fields_done and GAPS["fields"] & _ids:
+                REPAIR["fields"].add(_bid)
+            sims = Path(f"{R}/sims/batch_{_bid}")
+            lost = sims.exists() and any(
+                not (sims / f"{m:06d}_{r:02d}.npz").exists() for m in _ids for r in range(REPLICAS[m]))
+            if lost and (not fields_done or _bid in REPAIR["fields"]):
+                REPAIR["simulate"].add(_bid)
+
+
+def repair(stage):
+    """Input function: a fresh marker for a job the store shows to be stale, else nothing."""
+
+    def marker(wildcards):
+        batch = getattr(wildcards, "batch", None)
+        stale = REPAIR[stage] if batch is None else batch in REPAIR[stage]
+        return [f"{R}/.repair/{stage}_{batch or 'all'}_{NONCE}"] if stale else []
+
+    return marker
+
+
 localrules:
     all,
     init_store,
+    repair_marker,
     dataset,
+    dataset_card,

@@ -1,4 +1,5 @@
-# Stage 3: rasterise each simulation into the 8 fields and write the finished samples.
+# Stage 3: rasterise each simulation into the 8 fields and write the finished samples; then
+# the finished dataset (expected fields of replicated moulds, the per-sample table).
 
 
 rule fields:
@@ -7,9 +8,12 @@ rule fields:
     input:
         sims=f"{R}/sims/batch_{{batch}}",
         moulds=f"{R}/moulds/batch_{{batch}}.json",
-        store=STORE_READY,
+        manifest=STORE_MANIFEST,
+        repair=repair("fields"),
     output:
         f"{R}/fields/batch_{{batch}}.json",
+    params:
+        store=STORE,
     log:
         f"{R}/logs/fields/batch_{{batch}}.log",
     resources:
@@ -26,10 +30,12 @@ rule dataset:
         expand(f"{R}/fields/batch_{{batch}}.json", batch=BATCH_IDS),
     output:
         f"{R}/dataset_summary.csv",
+    params:
+        store=STORE,
     log:
         f"{R}/logs/dataset.log",
     script:
-        "../scripts/dataset_summary.py"
+        "../scripts/dataset.py"
 
 
 rule sample_figure:
@@ -39,6 +45,8 @@ rule sample_figure:
         f"{R}/dataset_summary.csv",
     output:
         f"{R}/figures/samples.png",
+    params:
+        store=STORE,
     log:
         f"{R}/logs/sample_figure.log",
     script:
@@ -46,3 +54,21 @@ rule sample_figure:
 
 
 FINAL_TARGETS.extend([*rules.dataset.output, *rules.sample_figure.output])
+
+
+rule dataset_card:
+    conda:
+        CONDA_ENV
+    input:
+        rules.dataset.output,
+    output:
+        f"{R}/README.md",
+    params:
+        store=STORE,
+    log:
+        f"{R}/logs/dataset_card.log",
+    script:
+        "../scripts/dataset_card.py"
+
+
+FINAL_TARGETS.extend(rules.dataset_card.output)

@@ -4,8 +4,12 @@
 rule init_store:
     conda:
         CONDA_ENV
+    input:
+        repair("init_store"),
     output:
-        STORE_READY,
+        STORE_MANIFEST,
+    params:
+        store=STORE,
     log:
         f"{R}/logs/init_store.log",
     script:
@@ -16,11 +20,13 @@ rule moulds:
     conda:
         CONDA_ENV
     input:
-        STORE_READY,
+        manifest=STORE_MANIFEST,
+        repair=repair("moulds"),
     output:
         f"{R}/moulds/batch_{{batch}}.json",
     params:
         ids=batch_ids,
+        store=STORE,
     log:
         f"{R}/logs/moulds/batch_{{batch}}.log",
     resources:
@@ -36,10 +42,10 @@ rule gallery:
     input:
         expand(f"{R}/moulds/batch_{{batch}}.json", batch=BATCH_IDS),
     output:
-        f"{R}/figures/mould_gallery.png",
-        f"{R}/figures/mould_regimes.csv",
+        gallery=f"{R}/figures/mould_gallery.png",
+        regimes=f"{R}/figures/mould_regimes.csv",
     params:
-        n=config["moulds"]["gallery"],
+        n=CONFIG.moulds["gallery"],
     log:
         f"{R}/logs/gallery.log",
     script:

@@ -1,11 +1,12 @@
-# Stage 2: CONDOR simulation of each mould of a batch (solver and budget from the config).
+# Stage 2: CONDOR simulation of every replica of every mould of a batch.
 
 
 rule simulate:
     conda:
         CONDA_ENV
     input:
-        f"{R}/moulds/batch_{{batch}}.json",
+        moulds=f"{R}/moulds/batch_{{batch}}.json",
+        repair=repair("simulate"),
     output:
         directory(f"{R}/sims/batch_{{batch}}"),
     log:

@@ -1,10 +1,8 @@
-# Stage 4: train each surrogate variant named in config["surrogate"]["variants"], evaluate it
-# on the test split, evaluate the baselines once, and gather one summary table.
+# Stage 4: train each surrogate variant named in surrogate.variants, evaluate it on the test
+# split, evaluate the baselines once, and gather one summary table.
 from condor.surrogate.variants import workflow_variants
 
-SURROGATE = config["surrogate"]
-VARIANTS = workflow_variants(config)  # {name: settings}; raises for an undefined name
-EVAL_MODES = SURROGATE["eval_modes"]
+VARIANTS = workflow_variants(CONFIG)  # {name: settings}
 EVALUATION = f"{R}/evaluation"
 
 
@@ -22,14 +20,15 @@ rule train:
         history=f"{R}/models/{{variant}}_history.csv",
     params:
         settings=lambda wildcards: VARIANTS[wildcards.variant],
-        device=SURROGATE["device"],
+        device=CONFIG.surrogate["device"],
+        store=STORE,
     log:
         f"{R}/logs/train/{{variant}}.log",
-    threads: SURROGATE["threads"]
+    threads: CONFIG.surrogate["threads"]
     resources:
         runtime=24 * 60,
         mem_mb=8000,
-        gpu=SURROGATE["gpus"],
+        gpu=CONFIG.surrogate["gpus"],
     script:
         "../scripts/train.py"
 
@@ -42,7 +41,7 @@ rule evaluate:
         dataset=rules.dataset.output,
     output:
         summary=f"{EVALUATION}/{{variant}}/summary.csv",
-        tables=[t for mode in EVAL_MODES
+        tables=[t for mode in CONFIG.surrogate["eval_modes"]
                 for t in evaluation_tables(f"{EVALUATION}/{{variant}}/{{variant}}_{mode}")],
         figures=report(
             directory(f"{EVALUATION}/{{variant}}/figures"),
@@ -52,15 +51,16 @@ rule evaluate:
             subcategory="{variant}",
         ),
     params:
-        modes=EVAL_MODES,
-        device=SURROGATE["device"],
+        modes=list(CONFIG.surrogate["eval_modes"]),
+        device=CONFIG.surrogate["device"],
+        store=STORE,
     log:
         f"{R}/logs/evaluate/{{variant}}.log",
-    threads: SURROGATE["threads"]
+    threads: CONFIG.surrogate["threads"]
     resources:
         runtime=60,
         mem_mb=8000,
-        gpu=SURROGATE["gpus"],
+        gpu=CONFIG.surrogate["gpus"],
     script:
         "../scripts/evaluate.py"
 
@@ -81,13 +81,15 @@ rule evaluate_baselines:
             category="Surrogate",
             subcategory="baselines",
         ),
+    params:
+        store=STORE,
     log:
         f"{R}/logs/evaluate/baselines.log",
     resources:
         runtime=30,
         mem_mb=4000,
     script:
-        "../scripts/evaluate.py"
+        "../scripts/evaluate_baselines.py"
 
 
 rule surrogate_summary:
@@ -105,7 +107,7 @@ rule surrogate_summary:
     log:
         f"{R}/logs/evaluate/summary.log",
     script:
-        "../scripts/evaluate.py"
+        "../scripts/surrogate_summary.py"
 
 
 localrules:
@@ -116,7 +118,5 @@ FINAL_TARGETS.extend(
     [
         *rules.surrogate_summary.output,
         *expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
-        *expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
-        f"{EVALUATION}/baselines/figures",
     ]
 )

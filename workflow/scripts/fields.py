@@ -1,6 +1,6 @@
 """Rasterise one batch of simulations into the store's fields."""
-from condor.pipeline import setup_logging, store_path, write_fields
+from condor.stages import start_job
+from condor.stages.dataset import write_fields
 
-setup_logging(snakemake.log[0])
-write_fields(snakemake.config, snakemake.input.sims, snakemake.input.moulds, store_path(snakemake.config),
-             snakemake.output[0])
+write_fields(start_job(snakemake), snakemake.input.sims, snakemake.input.moulds,
+             snakemake.params.store, snakemake.output[0])

@@ -1,8 +1,6 @@
 """The mould gallery figure and the regime/removal frequency table."""
-from condor.moulds import gallery, regime_table
-from condor.pipeline import load_moulds, setup_logging
+from condor.stages import start_job
+from condor.stages.dataset import mould_gallery
 
-setup_logging(snakemake.log[0])
-moulds = [m for path in snakemake.input for m in load_moulds(path)]
-gallery(moulds[: snakemake.params.n], snakemake.output[0])
-regime_table(moulds).to_csv(snakemake.output[1])
+start_job(snakemake)
+mould_gallery(snakemake.input, snakemake.params.n, snakemake.output.gallery, snakemake.output.regimes)

@@ -1,8 +1,5 @@
-"""Create the dataset store (or accept a matching one) and warm numba's kernel cache once,
-before the per-batch jobs fan out."""
-from condor.pipeline import init_store, setup_logging, warm_kernels
+"""Create the dataset store (or keep the matching one) and warm numba's kernel cache once."""
+from condor.stages import start_job
+from condor.stages.dataset import init_store
 
-setup_logging(snakemake.log[0])
-warm_kernels()
-created = init_store(snakemake.config)
-print("store created" if created else "store exists and matches the config; kept")
+init_store(start_job(snakemake), snakemake.params.store, snakemake.output[0])

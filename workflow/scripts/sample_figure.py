@@ -1,6 +1,6 @@
 """A few samples' moulds and 8 fields, as the paper's example figure shows them."""
-from condor.figures import sample_panels
-from condor.pipeline import setup_logging, store_path
+from condor.stages import start_job
+from condor.stages.dataset import sample_figure
 
-setup_logging(snakemake.log[0])
-sample_panels(store_path(snakemake.config), snakemake.output[0], n=4)
+start_job(snakemake)
+sample_figure(snakemake.params.store, snakemake.output[0])

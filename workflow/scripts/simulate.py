@@ -1,5 +1,5 @@
-"""Simulate one batch of moulds, one result file per mould."""
-from condor.pipeline import setup_logging, simulate_moulds
+"""Simulate every replica of every mould of one batch, one result file each."""
+from condor.stages import start_job
+from condor.stages.dataset import simulate_batch
 
-setup_logging(snakemake.log[0])
-simulate_moulds(snakemake.config, snakemake.input[0], snakemake.output[0])
+simulate_batch(start_job(snakemake), snakemake.input.moulds, snakemake.output[0])

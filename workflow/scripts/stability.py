@@ -1,10 +1,5 @@
-"""Every stability case with every solver (condor.stability): one table."""
-import logging
+"""Every stability case with every solver: one table."""
+from condor.stages import start_job
+from condor.stages.studies import stability
 
-from condor.pipeline import setup_logging
-from condor.stability import run_cases
-
-setup_logging(snakemake.log[0])
-df = run_cases(solvers=tuple(snakemake.params.solvers))
-df.to_csv(snakemake.output[0], index=False)
-logging.getLogger("condor").info("\n" + df.drop(columns=["what"]).to_string(index=False))
+stability(start_job(snakemake), snakemake.output[0])

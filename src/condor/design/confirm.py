@@ -25,8 +25,10 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from condor.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pearson_r
-from condor.fields import normalise
+from condor.fields import cell_fields, normalise
 from condor.moulds import Mould, input_channels
+from condor.seeds import replica_seed
+from condor.simulate import simulate
 
 from .objectives import Objective
 from .search import SearchResult
@@ -34,16 +36,11 @@ from .search import SearchResult
 
 def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
     """Simulation seeds of replicas 0..replicas-1 of mould `mould_id` under global seed
-    `seed`: replica 0 is condor.pipeline.simulation_seed (the dataset's own sample), replica
-    r >= 1 is default_rng([seed, mould_id, 1, r]).integers(2**62) (the store's convention)."""
-    from condor.pipeline import simulation_seed
-
+    `seed`: condor.seeds.replica_seed, the store's convention (replica 0 is the stream of a
+    dataset's own sample)."""
     if isinstance(replicas, bool) or not isinstance(replicas, (int, np.integer)) or replicas < 1:
         raise ValueError(f"replicas = {replicas!r} must be a positive integer")
-    seeds = [simulation_seed(int(seed), int(mould_id))]
-    for r in range(1, replicas):
-        seeds.append(int(np.random.default_rng([int(seed), int(mould_id), 1, r]).integers(2**62)))
-    return seeds
+    return [replica_seed(int(seed), int(mould_id), r) for r in range(replicas)]
 
 
 # --------------------------------------------------------------------------- selection
@@ -125,14 +122,15 @@ class SimulatedDesigns:
 
 
 def _simulate_one(task):
-    """One replica (top level, so that a process pool can run it)."""
-    from condor.pipeline import rasterise_result
-    from condor.simulate import simulate
-
+    """One replica (top level, so that a process pool can run it), rasterised on the scene's
+    grid as the dataset's fields are."""
     mould, scene, solver, budget, seed = task
     result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
                       seed=seed)
-    fields = rasterise_result(result, scene) if result.status == "ok" else None
+    fields = None
+    if result.status == "ok":
+        fields = cell_fields(result.positions, result.orientations, result.tension, scene.box,
+                             scene.pixels, scene.sigma)
     if fields is not None and not np.all(np.isfinite(fields)):
         return None, result.n_cells, "non-finite fields", result.seconds
     return fields, result.n_cells, result.status, result.seconds
@@ -214,16 +212,29 @@ def baseline_objectives(objective: Objective, fields: np.ndarray, n_cells,
 
 
 def dataset_baseline(objective: Objective, ds, split: str = "test") -> pd.DataFrame:
-    """baseline_objectives of the ok samples of one split of a dataset store opened with
-    xarray (variables fields, n_cells, status, split; condor.store's layout)."""
+    """The simulated objective of the moulds of one split of a dataset store opened with
+    xarray (condor.store's layout: per sample fields, n_cells, status, split, and mould /
+    replica when the store holds replicas): per mould, the objective of the mean of its ok
+    replicas' normalised fields. One row per mould: mould_id, n_replicas, objective and
+    quantities."""
     status = np.asarray(ds["status"].values).astype(str)
     keep = (status == "ok") & (np.asarray(ds["split"].values).astype(str) == split)
     index = np.flatnonzero(keep)
     if not index.size:
         raise ValueError(f"the dataset has no simulated ('ok') {split!r} moulds")
-    sample = ds["sample"].values[index] if "sample" in ds.coords else index
-    return baseline_objectives(objective, ds["fields"].values[index],
-                               ds["n_cells"].values[index], sample)
+    moulds = np.asarray(ds["mould"].values)[index] if "mould" in ds else index
+    ids, means, counts = [], [], []
+    n_cells = np.asarray(ds["n_cells"].values, dtype=np.float64)
+    for mould in np.unique(moulds):
+        samples = index[moulds == mould]
+        raw = np.asarray(ds["fields"].isel(sample=samples).values, dtype=np.float64)
+        means.append(normalise(raw, n_cells[samples]).mean(axis=0))
+        ids.append(int(mould))
+        counts.append(len(samples))
+    table = objective.evaluate(np.stack(means))
+    table.insert(0, "n_replicas", counts)
+    table.insert(0, "mould_id", ids)
+    return table
 
 
 # --------------------------------------------------------------------------- agreement

@@ -92,3 +92,9 @@ class MouldBlurBaseline:
         blur = self._design(inputs, self.sigma_px)[:, None]  # (S, 1, H, W)
         a, b = self.coef[0][:, None, None], self.coef[1][:, None, None]
         return (a * blur + b).astype(np.float32)
+
+
+def fit_baselines(train_inputs: np.ndarray, train_fields: np.ndarray, pixel_size: float) -> list:
+    """Every baseline, fitted on training inputs (S, 2, H, W) and fields (S, 8, H, W)."""
+    return [MaskedMeanBaseline().fit(train_inputs, train_fields),
+            MouldBlurBaseline(pixel_size).fit(train_inputs, train_fields)]

@@ -13,21 +13,22 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
-CHANNEL_NAMES = ("mould", "tether")
-SPLITS = ("train", "val", "test")
+from condor.dataset import usable_samples  # noqa: F401  (the one home; re-exported here)
+from condor.fields import FIELD_NAMES
+from condor.store import CHANNELS as CHANNEL_NAMES
+from condor.store import SPLITS  # noqa: F401
+
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
 
 
-def usable_samples(ds, split: str | None = None) -> np.ndarray:
-    """Positions (along `sample`) of samples with status "ok", optionally in one split."""
-    if split is not None and split not in SPLITS:
-        raise ValueError(f"split {split!r} is not one of {SPLITS}")
-    status = np.asarray(ds["status"].values).astype(str)
-    keep = status == "ok"
-    if split is not None:
-        keep &= np.asarray(ds["split"].values).astype(str) == split
-    return np.flatnonzero(keep)
+class DataError(ValueError):
+    """Training or evaluation data that cannot be used; the message names the samples."""
+
+
+def _named(ds, positions) -> list:
+    positions = np.atleast_1d(np.asarray(positions))
+    ids = ds["sample"].values[positions] if "sample" in ds.coords else positions
+    return [int(i) for i in ids[:12]]
 
 
 def check_dataset(ds) -> None:
@@ -266,9 +267,19 @@ class SampleSource:
         return len(self.indices)
 
     def _read(self, positions: np.ndarray):
-        sel = self.ds.isel(sample=positions)
-        inputs = resample_masks(np.asarray(sel["inputs"].values, dtype=np.float32), self.size)
-        fields = np.asarray(sel["fields"].values, dtype=np.float32)
+        try:
+            sel = self.ds.isel(sample=positions)
+            raw_inputs = np.asarray(sel["inputs"].values, dtype=np.float32)
+            fields = np.asarray(sel["fields"].values, dtype=np.float32)
+        except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
+            raise DataError(f"cannot read sample(s) {_named(self.ds, positions)} of the "
+                            f"dataset: {type(err).__name__}: {err} (condor check-store --deep "
+                            "lists the corrupt samples)") from err
+        bad = ~np.isfinite(fields).all(axis=tuple(range(1, fields.ndim)))
+        if bad.any():
+            raise DataError(f"sample(s) {_named(self.ds, positions[bad])} marked ok hold NaN or "
+                            "inf fields (a lost chunk?): run condor check-store")
+        inputs = resample_masks(raw_inputs, self.size)
         if self.scaling is not None:
             fields = self.scaling.scale(resample_fields(fields, self.size)).astype(np.float32)
         return torch.from_numpy(np.ascontiguousarray(inputs)), torch.from_numpy(np.ascontiguousarray(fields))

@@ -207,11 +207,22 @@ def _arrays(ds, indices) -> tuple[np.ndarray, np.ndarray, list]:
 
 
 def _test_arrays(ds, split: str):
+    """Inputs, the truth and the sample ids of `split`. The truth is a mould's expected fields
+    (the store's `fields_mean`, the mean of its replicas) where the store has them, else its
+    one simulation."""
     check_dataset(ds)
     test_idx = usable_samples(ds, split)
     if len(test_idx) == 0:
         raise ValueError(f"dataset has no usable samples in split {split!r}")
-    return _arrays(ds, test_idx)
+    inputs, fields, ids = _arrays(ds, test_idx)
+    if "fields_mean" in ds and "mould" in ds:
+        position = {int(m): k for k, m in enumerate(ds["replicated"].values)}
+        counts = ds["n_replicas_ok"].values
+        for row, mould in enumerate(ds["mould"].values[test_idx]):
+            k = position.get(int(mould))
+            if k is not None and counts[k] >= 2:
+                fields[row] = ds["fields_mean"].isel(replicated=k).values
+    return inputs, fields, ids
 
 
 def _timed(fn, n: int):

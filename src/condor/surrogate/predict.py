@@ -205,10 +205,11 @@ def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray
     if array.ndim != 3 or array.shape[0] != 2 or array.shape[1] != array.shape[2]:
         raise ValueError(f"{path}: inputs must have shape (2, H, H), got {array.shape}")
     array = _binary(array, str(path))
-    try:
-        return resample_masks(array, pixels)
-    except ValueError as err:
-        raise ValueError(f"{path}: {err}") from err
+    if array.shape[-1] != pixels:
+        raise ValueError(f"{path}: inputs are {array.shape[-1]} x {array.shape[-1]} px, the "
+                         f"checkpoint was trained on {pixels} x {pixels} px (resample them "
+                         "yourself if you mean it: a pixel is a length in l0)")
+    return array
 
 
 def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
@@ -257,9 +258,11 @@ def plot_raw_and_normalised(inputs: np.ndarray, prediction: Prediction, path, ti
 
 
 def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
-                     pixel_size: float | None = None, attrs: dict | None = None) -> None:
+                     pixel_size: float | None = None, attrs: dict | None = None,
+                     overwrite: bool = False) -> None:
     """Write a prediction to `path`: a .zarr store (xarray, see prediction_dataset) or a
-    .png picture; ValueError for another suffix."""
+    .png picture; ValueError for another suffix. An existing .zarr is replaced only with
+    `overwrite`."""
     from pathlib import Path
 
     path = Path(path)
@@ -269,7 +272,8 @@ def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
             # zarr 3 warns that string coordinates and consolidated metadata are outside the
             # v3 spec; xarray reads both back.
             warnings.filterwarnings("ignore", module="zarr")
-            prediction_dataset(prediction, inputs, pixel_size, attrs).to_zarr(path, mode="w")
+            prediction_dataset(prediction, inputs, pixel_size, attrs).to_zarr(
+                path, mode="w" if overwrite else "w-")
     elif suffix == ".png":
         title = f"predicted fields, N_c = {float(prediction.n_cells):.1f}"
         plot_raw_and_normalised(inputs, prediction, path, title)

@@ -1,0 +1,220 @@
+"""The dataset as a product, for whoever trains elsewhere: open it, select a split, normalise
+it, feed it to PyTorch, and read its card.
+
+    import condor
+    ds = condor.open_dataset("results/dataset.zarr")     # xarray.Dataset, validated
+    train = condor.dataset.select(ds, "train")           # ok samples, one per mould
+    stats = condor.dataset.field_statistics(ds)          # per-field mean/std/min/max (train)
+    loader = torch.utils.data.DataLoader(condor.dataset.torch_dataset(ds, "train"), batch_size=8)
+
+Layout (DESIGN.md "The dataset contract", condor.store): `inputs` (sample, channel, y, x) 0/1
+with channels mould, tether; `fields` (sample, field, y, x) float32, the 8 un-normalised fields
+P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz; per-sample metadata; for moulds simulated with several
+seeds, `fields_mean` and `fields_std` (replicated, field, y, x). A `README.md` dataset card
+(`write_card`) sits beside the store.
+"""
+
+from __future__ import annotations
+
+import datetime
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from condor import __version__
+from condor.fields import FIELD_NAMES
+from condor.store import SPLITS, check_store, open_store
+
+# What torch_dataset yields, per item (documented shapes: the card and the tests use them).
+ITEM_SHAPES = "inputs (2, H, W) float32 0/1; fields (8, H, W) float32"
+
+
+def open_dataset(path) -> xr.Dataset:
+    """The dataset store at `path` as a lazily loaded xarray.Dataset (validated first)."""
+    return open_store(path)
+
+
+def usable_samples(ds: xr.Dataset, split: str | None = None, all_replicas: bool = False) -> np.ndarray:
+    """Positions (along `sample`) of the ok samples of `split` (all splits when None): replica
+    0 of each mould unless `all_replicas` (extra replicas are the test moulds' expected fields,
+    not more moulds)."""
+    if split is not None and split not in SPLITS:
+        raise ValueError(f"split {split!r} is not one of {SPLITS}")
+    keep = np.asarray(ds["status"].values).astype(str) == "ok"
+    if split is not None:
+        keep &= np.asarray(ds["split"].values).astype(str) == split
+    if not all_replicas and "replica" in ds:
+        keep &= np.asarray(ds["replica"].values) == 0
+    return np.flatnonzero(keep)
+
+
+def select(ds: xr.Dataset, split: str | None = None, all_replicas: bool = False) -> xr.Dataset:
+    """The ok samples of `split` as a Dataset (see usable_samples)."""
+    return ds.isel(sample=usable_samples(ds, split, all_replicas))
+
+
+def per_cell(ds: xr.Dataset) -> xr.DataArray:
+    """The paper's normalised fields: fields x N_p / N_c (pixels over cells), per sample."""
+    n_pixels = ds.sizes["x"] * ds.sizes["y"]
+    return ds["fields"] * (n_pixels / ds["n_cells"].astype("float64"))
+
+
+def field_statistics(ds: xr.Dataset, split: str = "train", chunk: int = 64) -> pd.DataFrame:
+    """Per field, over the ok samples of `split` and every pixel: mean, std, min, max (float64,
+    read `chunk` samples at a time)."""
+    sel = select(ds, split)
+    if sel.sizes["sample"] == 0:
+        raise ValueError(f"no ok sample in split {split!r}")
+    n = 0
+    total = np.zeros(len(FIELD_NAMES))
+    squares = np.zeros(len(FIELD_NAMES))
+    lo = np.full(len(FIELD_NAMES), np.inf)
+    hi = np.full(len(FIELD_NAMES), -np.inf)
+    for start in range(0, sel.sizes["sample"], chunk):
+        f = sel["fields"].isel(sample=slice(start, start + chunk)).values.astype(np.float64)
+        n += f.shape[0] * f.shape[2] * f.shape[3]
+        total += f.sum(axis=(0, 2, 3))
+        squares += (f * f).sum(axis=(0, 2, 3))
+        lo = np.minimum(lo, f.min(axis=(0, 2, 3)))
+        hi = np.maximum(hi, f.max(axis=(0, 2, 3)))
+    mean = total / n
+    std = np.sqrt(np.maximum(squares / n - mean ** 2, 0.0))
+    return pd.DataFrame({"field": FIELD_NAMES, "mean": mean, "std": std, "min": lo, "max": hi})
+
+
+def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFrame | None = None):
+    """A torch.utils.data.Dataset over the ok samples of `split` (replica 0 of each mould):
+    item k is (inputs (2, H, W) float32 0/1, fields (8, H, W) float32), fields standardised
+    per field by a `field_statistics` table when given. Samples are read lazily, one chunk
+    each, so it serves stores larger than memory (use DataLoader workers for speed)."""
+    import torch
+
+    sel = select(ds, split)
+    mean = std = None
+    if standardise is not None:
+        mean = standardise["mean"].to_numpy(np.float32)[:, None, None]
+        std = np.where(standardise["std"] > 0, standardise["std"], 1.0).astype(np.float32)[:, None, None]
+
+    class FieldsDataset(torch.utils.data.Dataset):
+        def __len__(self):
+            return sel.sizes["sample"]
+
+        def __getitem__(self, k):
+            item = sel.isel(sample=int(k))
+            inputs = item["inputs"].values.astype(np.float32)
+            fields = item["fields"].values.astype(np.float32)
+            if mean is not None:
+                fields = (fields - mean) / std
+            return torch.from_numpy(inputs), torch.from_numpy(fields)
+
+    return FieldsDataset()
+
+
+# --- the dataset card -----------------------------------------------------------------------
+
+def card(store, config: dict | None = None) -> str:
+    """A dataset card (Markdown) generated from the store: scene and model parameters, counts
+    per split and status, generation core-hours and hardware, code version and config,
+    per-field statistics, how to load it."""
+    ds = open_dataset(store)
+    attrs = ds.attrs
+    table = check_store(store)
+    counts = table.assign(state=table["state"]).groupby(["split", "state"]).size().unstack(
+        fill_value=0)
+    seconds = ds["solver_seconds"].values.astype(np.float64)
+    status = ds["status"].values.astype(str)
+    hardware = pd.DataFrame({"hardware": ds["hardware"].values.astype(str),
+                             "seconds": np.nan_to_num(seconds)})
+    by_machine = hardware[status != ""].groupby("hardware")["seconds"].agg(["size", "sum"])
+    stats = field_statistics(ds) if "train" in set(table["split"]) else None
+    scene = attrs.get("scene", {})
+    lines = [
+        f"# condor dataset: scene {scene.get('name')!r}, {attrs['n_moulds']} moulds",
+        "",
+        f"Written by condor {__version__} on {datetime.date.today().isoformat()} from the store "
+        f"`{Path(store).name}` (format {attrs['format_version']}, created by condor "
+        f"{attrs.get('code_version')}). Every number below is read from the store.",
+        "",
+        "## What it is",
+        "",
+        "Cell-laden hydrogels in tethered moulds, simulated with the CONDOR contractile-network "
+        "model (Andrews, Dickinson and Hague) and rasterised into 8 fields per mould: the "
+        "input channels (mould, tether) and the fields P (density), T (tension), Sx2, Sy2, "
+        "Sz2, SxSy, SxSz, SySz (orientation tensor), un-normalised pixel sums.",
+        "",
+        "## Scene and model",
+        "",
+        f"- box {scene.get('box')} l0, depth {scene.get('depth')} l0, {attrs['pixels']} x "
+        f"{attrs['pixels']} px of {attrs.get('pixel_size')} l0, kernel sigma {attrs.get('sigma')} l0",
+        f"- model: {json.dumps(attrs.get('model'))}",
+        f"- solver: {attrs.get('solver')} (budget {attrs.get('solver_budget')}); global seed "
+        f"{attrs['seed']}; replicas per mould by split: "
+        f"{json.dumps(attrs.get('data_config', {}).get('replicas'))}",
+        "",
+        "## Samples",
+        "",
+        f"{len(table)} simulations of {attrs['n_moulds']} moulds ({int((status == 'ok').sum())} "
+        "ok). Per split and state:",
+        "",
+        _markdown(counts.reset_index()),
+        "",
+        "A failed simulation keeps its reason in `status` and has no fields.",
+        "",
+        "## Cost and hardware",
+        "",
+        f"Generation: {np.nansum(seconds) / 3600:.3f} core-hours of solver CPU time over "
+        f"{int((status != '').sum())} simulations (median {np.nanmedian(seconds):.2f} s each).",
+        "",
+        _markdown(by_machine.reset_index().rename(columns={"size": "simulations",
+                                                           "sum": "CPU seconds"})),
+        "",
+    ]
+    if stats is not None:
+        lines += ["## Per-field statistics (train split, ok samples, every pixel)", "",
+                  _markdown(stats), "",
+                  "Also: `condor.dataset.field_statistics(ds)`.", ""]
+    lines += [
+        "## How to load it",
+        "",
+        "```python",
+        "import condor, torch",
+        f"ds = condor.open_dataset({str(Path(store).name)!r})  # xarray.Dataset",
+        "train = condor.dataset.select(ds, 'train')          # ok samples, replica 0",
+        "stats = condor.dataset.field_statistics(ds)",
+        "loader = torch.utils.data.DataLoader(",
+        "    condor.dataset.torch_dataset(ds, 'train', standardise=stats), batch_size=8)",
+        f"# items: {ITEM_SHAPES}",
+        "```",
+        "",
+        "Replicas: sample `s` holds replica `replica[s]` of mould `mould[s]`; samples 0..n-1 are "
+        "replica 0 of moulds 0..n-1. `fields_mean` / `fields_std` along `replicated` are the "
+        "expected fields and their spread. Every chunk carries a CRC32C checksum: "
+        "`condor check-store --deep` verifies them.",
+        "",
+        "## Configuration",
+        "",
+        "```json",
+        json.dumps(config if config is not None else attrs.get("data_config"), indent=1),
+        "```",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def write_card(store, out_md, config: dict | None = None) -> Path:
+    out_md = Path(out_md)
+    out_md.write_text(card(store, config))
+    return out_md
+
+
+def _markdown(frame: pd.DataFrame) -> str:
+    def cell(v):
+        return f"{v:.4g}" if isinstance(v, (float, np.floating)) else str(v)
+
+    head = "| " + " | ".join(map(str, frame.columns)) + " |"
+    rule = "| " + " | ".join("---" for _ in frame.columns) + " |"
+    rows = ["| " + " | ".join(cell(v) for v in row) + " |" for row in frame.itertuples(index=False)]
+    return "\n".join([head, rule, *rows])

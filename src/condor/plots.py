@@ -1,0 +1,204 @@
+"""Every figure condor draws, in one place, with one matplotlib setup.
+
+Computing modules return arrays and tables; the stages call these functions to draw them.
+matplotlib is imported on first use (it costs a second of start-up that most commands do not
+need) and always with the file-only Agg backend (no display on workers).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+
+from condor.fields import FIELD_NAMES
+
+_PLT = None
+
+
+def pyplot():
+    """matplotlib.pyplot with the Agg backend."""
+    global _PLT
+    if _PLT is None:
+        import matplotlib
+
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+
+        _PLT = plt
+    return _PLT
+
+
+def save(fig, path, dpi: int = 110) -> Path:
+    """Write `fig` to `path` (folders made) and close it."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=dpi)
+    pyplot().close(fig)
+    return path
+
+
+# --- moulds -----------------------------------------------------------------------------------
+
+def draw_mould(ax, mould, title: bool = True) -> None:
+    """The footprint (filled, holes open) and tethers of a condor.moulds.Mould on an Axes."""
+    from matplotlib.patches import Circle, PathPatch
+    from matplotlib.path import Path as MplPath
+
+    rings = [mould.polygon.exterior, *mould.polygon.interiors]
+    vertices, codes = [], []
+    for ring in rings:
+        xy = np.asarray(ring.coords)
+        vertices.append(xy)
+        codes.append([MplPath.MOVETO] + [MplPath.LINETO] * (len(xy) - 2) + [MplPath.CLOSEPOLY])
+    path = MplPath(np.concatenate(vertices), np.concatenate(codes))
+    ax.add_patch(PathPatch(path, facecolor="#9ecae1", edgecolor="#08519c", lw=0.8))
+    for x, y, r in np.asarray(mould.tethers).reshape(-1, 3):
+        ax.add_patch(Circle((x, y), r, facecolor="#d62728", edgecolor="none"))
+    ax.set_xlim(0, mould.box)
+    ax.set_ylim(0, mould.box)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    if title:
+        ax.set_title(f"{mould.symmetry}, {mould.order}, {mould.removal}", fontsize=7)
+
+
+def mould_gallery(moulds, path, ncols: int = 6) -> Path:
+    """A PNG grid of moulds."""
+    moulds = list(moulds)
+    if not moulds:
+        raise ValueError("moulds is empty: nothing to draw")
+    plt = pyplot()
+    ncols = max(1, min(ncols, len(moulds)))
+    nrows = math.ceil(len(moulds) / ncols)
+    fig, axes = plt.subplots(nrows, ncols, figsize=(2.2 * ncols, 2.3 * nrows), squeeze=False)
+    for ax in axes.flat[len(moulds):]:
+        ax.axis("off")
+    for ax, mould in zip(axes.flat, moulds):
+        draw_mould(ax, mould)
+    fig.tight_layout()
+    return save(fig, path)
+
+
+def mould_picture(mould, path) -> Path:
+    """One mould, drawn alone."""
+    fig, ax = pyplot().subplots(figsize=(4, 4))
+    draw_mould(ax, mould)
+    fig.tight_layout()
+    return save(fig, path, dpi=120)
+
+
+# --- fields -----------------------------------------------------------------------------------
+
+def field_panels(rows, path, title: str = "", field_names=FIELD_NAMES, dpi: int = 100) -> Path:
+    """One row per entry of `rows` = (label, inputs (2, H, W) or None, fields (F, H, W)):
+    the mould (grey: mould, black: tethers) and each field with its colour bar. y up."""
+    rows = list(rows)
+    if not rows:
+        raise ValueError("no rows to draw")
+    plt = pyplot()
+    with_inputs = any(r[1] is not None for r in rows)
+    ncols = len(field_names) + int(with_inputs)
+    fig, axes = plt.subplots(len(rows), ncols, figsize=(1.65 * ncols, 1.75 * len(rows) + 0.4),
+                             squeeze=False)
+    for ax_row, (label, inputs, fields) in zip(axes, rows):
+        panels = list(ax_row)
+        if with_inputs:
+            ax = panels.pop(0)
+            if inputs is not None:
+                ax.imshow(inputs[0] + 2 * inputs[1], origin="lower", cmap="Greys", vmin=0, vmax=2)
+            ax.set_title(label, fontsize=7)
+        for k, (ax, name, image) in enumerate(zip(panels, field_names, fields)):
+            im = ax.imshow(image, origin="lower", cmap="viridis")
+            ax.set_title(name if with_inputs or k else f"{label}: {name}", fontsize=7)
+            fig.colorbar(im, ax=ax, fraction=0.046, pad=0.02).ax.tick_params(labelsize=5)
+    for ax in axes.flat:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    if title:
+        fig.suptitle(title, fontsize=9)
+    fig.tight_layout()
+    return save(fig, path, dpi=dpi)
+
+
+# --- studies ------------------------------------------------------------------------------------
+
+# The paper's reported costs: 24-36 core-hours per CONDOR simulation, ~0.1 s per prediction.
+PAPER_SIMULATION_SECONDS = (24 * 3600.0, 36 * 3600.0)
+PAPER_PREDICTION_SECONDS = 0.1
+FAMILY_COLOURS = {"long anneal": "black", "anneal": "tab:red", "minimise": "tab:blue",
+                  "hybrid": "tab:green", "dataset solver": "tab:olive",
+                  "surrogate": "tab:orange", "baseline": "tab:brown"}
+
+
+def accuracy_chart(table, path, title: str = "") -> Path:
+    """Field error against the expected fields (noise removed; bars: 95% bootstrap interval
+    over moulds) against CPU seconds per mould (log x), one point per method. The row "single
+    simulation" is also drawn as the ceiling line (band: its interval); shaded, the paper's
+    cost per simulation; dashed, its cost per prediction."""
+    plt = pyplot()
+    fig, ax = plt.subplots(figsize=(9.5, 5.4))
+    ceiling = table[table["method"] == "single simulation"]
+    if len(ceiling):
+        c = ceiling.iloc[0]
+        ax.axhline(c["field_error"], color="tab:olive", lw=1.2, ls="-", zorder=0)
+        ax.axhspan(c["field_error_lo"], c["field_error_hi"], color="tab:olive", alpha=0.15,
+                   zorder=0)
+        ax.annotate("one simulation (the noise ceiling)", (0.01, c["field_error"]),
+                    xycoords=("axes fraction", "data"), xytext=(0, 3), textcoords="offset points",
+                    fontsize=7, color="tab:olive")
+    for row in table.itertuples():
+        x = max(float(row.cpu_s_per_mould), 1e-5)
+        err = [[max(row.field_error - row.field_error_lo, 0)],
+               [max(row.field_error_hi - row.field_error, 0)]]
+        ax.errorbar(x, row.field_error, yerr=err, fmt="o", ms=6, elinewidth=1, capsize=2,
+                    color=FAMILY_COLOURS.get(row.family, "grey"))
+        ax.annotate(row.method, (x, row.field_error), fontsize=7, xytext=(4, 3),
+                    textcoords="offset points")
+    ax.axvspan(*PAPER_SIMULATION_SECONDS, color="tab:red", alpha=0.10)
+    ax.axvline(PAPER_PREDICTION_SECONDS, color="tab:orange", ls="--", lw=1)
+    ax.set_xscale("log")
+    lo = min(float(table["cpu_s_per_mould"].clip(lower=1e-5).min()), PAPER_PREDICTION_SECONDS)
+    ax.set_xlim(lo / 3, PAPER_SIMULATION_SECONDS[1] * 3)
+    ax.set_ylim(bottom=0)
+    top = ax.get_ylim()[1]
+    ax.text(np.sqrt(np.prod(PAPER_SIMULATION_SECONDS)), 0.97 * top,
+            "paper: 24-36 core-h\nper simulation", ha="center", va="top", fontsize=7,
+            color="tab:red")
+    ax.text(PAPER_PREDICTION_SECONDS * 1.15, 0.97 * top, "paper: ~0.1 s\nper prediction",
+            va="top", fontsize=7, color="tab:orange")
+    ax.set_xlabel("cost per mould, CPU seconds (one core)")
+    ax.set_ylabel("field error vs the expected fields\n(RMS of normalised fields, noise removed)")
+    handles = [plt.Line2D([], [], color=c, marker="o", ls="", label=f)
+               for f, c in FAMILY_COLOURS.items() if f in set(table["family"])]
+    ax.legend(handles=handles, fontsize=8, loc="center right")
+    ax.grid(alpha=0.3, which="both", lw=0.4)
+    ax.set_title(title or "cost per mould against error, every method, same test moulds",
+                 fontsize=9)
+    fig.tight_layout()
+    return save(fig, path, dpi=120)
+
+
+def convergence_chart(df, path) -> Path:
+    """Systematic field change per channel (noise removed) against depth and box size; dashed:
+    half the scatter of one simulation (a change below it is justified)."""
+    plt = pyplot()
+    studies = list(dict.fromkeys(df["study"]))
+    fig, axes = plt.subplots(1, len(studies), figsize=(5.2 * len(studies), 3.8), squeeze=False)
+    channels = ["P", "T", "Sx2", "Sy2", "Sz2"]
+    for ax, study in zip(axes[0], studies):
+        d = df[df["study"] == study]
+        for k, ch in enumerate(channels):
+            med = d.groupby("value")[f"change_{ch}"].median()
+            line, = ax.plot(med.index, med.values, marker="o", label=ch, color=f"C{k}")
+            ax.axhline(0.5 * d[f"noise_{ch}"].median(), color=line.get_color(), ls="--", lw=0.8)
+        ax.set_xlabel("depth, l0" if study == "depth" else "box side, l0")
+        ax.set_ylabel("systematic change vs the reference configuration\n(relative RMS, noise removed)")
+        ax.set_title(f"{study} (dashed: half one simulation's scatter)", fontsize=9)
+        ax.set_ylim(bottom=0)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    fig.tight_layout()
+    return save(fig, path, dpi=120)

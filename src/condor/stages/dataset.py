@@ -1,0 +1,247 @@
+"""The dataset stages: functions of (config, explicit paths) that write files.
+
+The workflow's scripts and the `condor` CLI call these and nothing else:
+
+1. `init_store`: warm numba's kernel cache, create the store (or accept the matching one) and
+   write the folder's manifest;
+2. `make_moulds`: generate and validate a batch of moulds; geometry JSON + the store's inputs;
+3. `simulate_batch`: every replica of every mould of a batch, one result file each (a failed
+   simulation is a result too, with its reason);
+4. `write_fields`: rasterise each ok result into the store; failures keep their reason;
+5. `finish_dataset`: the expected fields and spread of replicated moulds, and the per-sample
+   table; it fails, naming them, when samples are missing.
+Figures: `mould_gallery`, `sample_figure`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import platform
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from condor import plots
+from condor.config import Config
+from condor.fields import cell_fields
+from condor.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
+from condor.progress import progress
+from condor.scenes import Scene
+from condor.seeds import replica_seed
+from condor.simulate import SimResult, simulate, warm_up
+from condor.store import (check_store, create_store, open_store, sample_index, write_expected,
+                          write_inputs, write_sample)
+
+log = logging.getLogger("condor")
+
+
+def write_json_atomic(path: str | Path, payload) -> Path:
+    """Write JSON through a temporary file and a rename: readers see all of it or nothing."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(payload, indent=1))
+    os.replace(tmp, path)
+    return path
+
+
+# --- 1. the store -------------------------------------------------------------------------------
+
+def warm_kernels() -> None:
+    """Compile (or load from numba's cache) every kernel once, before the parallel fan-out:
+    numba's on-disk cache can be corrupted when many processes compile at once."""
+    warm_up()
+    cell_fields(np.full((1, 3), 1.0), np.array([[0.0, 0.0, 1.0]]), np.zeros(1), box=2.0, pixels=4)
+
+
+def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
+    """Create the store for `config` (or keep the matching one: its samples stay) and write
+    `manifest` (what the folder holds and for which data configuration). True if created."""
+    warm_kernels()
+    created = create_store(store, config.store_spec())
+    write_json_atomic(manifest, {"store": str(store), "data_config": config.data_config(),
+                                 "created": created})
+    log.info("store %s %s", store, "created" if created else "exists and matches; kept")
+    return created
+
+
+# --- 2. moulds ----------------------------------------------------------------------------------
+
+def make_mould(scene: Scene, seed: int, mould_id: int, params=None) -> Mould:
+    """Mould `mould_id` of dataset `seed` in `scene`, validated (never write invalid geometry)."""
+    kwargs = {} if params is None else {"params": params}
+    mould = generate_mould(seed, mould_id, box=scene.box, area_fraction=scene.area_fraction,
+                           max_extent=scene.max_extent, **kwargs)
+    validate_mould(mould)
+    return mould
+
+
+def mould_metadata(mould: Mould) -> dict:
+    return {"seed": mould.seed, "symmetry": mould.symmetry, "order": mould.order,
+            "removal": mould.removal, "n_tethers": mould.n_tethers}
+
+
+def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | None = None) -> list:
+    """Generate moulds `ids`; write their geometry to `out_json` and, when `store` is given,
+    their input channels and metadata into the store (every replica)."""
+    params = config.mould_params()
+    moulds = [make_mould(config.scene, config.seed, i, params) for i in ids]
+    write_json_atomic(out_json, [m.to_dict() for m in moulds])
+    if store is not None:
+        for mould in moulds:
+            write_inputs(store, mould.mould_id, input_channels(mould, config.scene.pixels),
+                         mould_metadata(mould))
+    log.info("moulds %s written to %s", _span(ids), out_json)
+    return moulds
+
+
+def load_moulds(path: str | Path) -> list:
+    return [Mould.from_dict(d) for d in json.loads(Path(path).read_text())]
+
+
+def _span(ids) -> str:
+    ids = list(ids)
+    return f"{ids[0]}..{ids[-1]}" if ids else "(none)"
+
+
+# --- 3. simulation ------------------------------------------------------------------------------
+
+def sim_file(out_dir: str | Path, mould: int, replica: int) -> Path:
+    """Where a batch keeps the result of one replica of one mould."""
+    return Path(out_dir) / f"{mould:06d}_{replica:02d}.npz"
+
+
+def hardware() -> str:
+    """The machine this process runs on, as the dataset records it: CPU model, cores, arch."""
+    model = platform.processor() or platform.machine()
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                model = line.split(":", 1)[1].strip()
+                break
+    except OSError:
+        pass
+    return f"{model}, {os.cpu_count()} cores, {platform.machine()}"
+
+
+def simulate_mould(mould: Mould, scene: Scene, solver: str | None, budget, seed: int) -> SimResult:
+    """One simulation of `mould` in `scene`; the result records the scene it belongs to and
+    the hardware it ran on."""
+    result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
+                      seed=seed)
+    result.info["scene"] = scene.to_dict()
+    result.info["hardware"] = hardware()
+    return result
+
+
+def simulate_batch(config: Config, moulds_json: str | Path, out_dir: str | Path) -> list[str]:
+    """Simulate every replica of every mould in `moulds_json`; one result file each."""
+    solver, budget = config.solver()
+    replicas = config.replicas()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    jobs = [(m, r) for m in load_moulds(moulds_json) for r in range(replicas[m.mould_id])]
+    statuses = []
+    for k, (mould, replica) in enumerate(progress(jobs, desc="simulate", unit="sim"), 1):
+        seed = replica_seed(config.seed, mould.mould_id, replica)
+        result = simulate_mould(mould, config.scene, solver, budget, seed)
+        result.save(sim_file(out_dir, mould.mould_id, replica))
+        statuses.append(result.status)
+        log.info("[%d/%d] mould %d replica %d: %s, %d cells, E/cell %.5g, %.2f s", k, len(jobs),
+                 mould.mould_id, replica, result.status, result.n_cells,
+                 result.energy_per_cell, result.seconds)
+    return statuses
+
+
+# --- 4. fields ----------------------------------------------------------------------------------
+
+class SceneMismatchError(ValueError):
+    """A simulation rasterised on the grid of another scene."""
+
+
+def rasterise_result(result: SimResult, scene: Scene) -> np.ndarray:
+    """The 8 fields of a result on `scene`'s grid; SceneMismatchError when the result was
+    simulated for another box."""
+    recorded = result.info.get("scene")
+    if recorded is not None and abs(float(recorded["box"]) - scene.box) > 1e-9 * scene.box:
+        raise SceneMismatchError(
+            f"the simulation belongs to scene {recorded.get('name')!r} (box {recorded['box']:g} "
+            f"l0), not {scene.name!r} (box {scene.box:g} l0): pass --scene {recorded.get('name')}")
+    return cell_fields(result.positions, result.orientations, result.tension, scene.box,
+                       scene.pixels, scene.sigma)
+
+
+def max_force(result: SimResult) -> float:
+    """The largest residual force of a result (kappa0 l0), NaN when the solver reports none."""
+    return float(result.info.get("max_force", result.info.get("min_max_force", np.nan)))
+
+
+def write_fields(config: Config, sims_dir: str | Path, moulds_json: str | Path,
+                 store: str | Path, out_summary: str | Path) -> dict:
+    """Rasterise each simulation of the batch into the store; failures keep their reason."""
+    replicas = config.replicas()
+    summary = {}
+    for mould in load_moulds(moulds_json):
+        for replica in range(replicas[mould.mould_id]):
+            path = sim_file(sims_dir, mould.mould_id, replica)
+            if not path.is_file():
+                raise FileNotFoundError(f"simulation result {path} is missing: the simulate job "
+                                        "of this batch must run again (the workflow does this)")
+            result = SimResult.load(path)
+            meta = {"sim_seed": result.seed, "n_cells": result.n_cells, "energy": result.energy,
+                    "max_force": max_force(result), "solver": result.solver,
+                    "solver_seconds": result.seconds,
+                    "hardware": str(result.info.get("hardware", ""))}
+            fields = rasterise_result(result, config.scene) if result.status == "ok" else None
+            status = result.status
+            if fields is not None and not np.all(np.isfinite(fields)):
+                fields, status = None, "non-finite fields"
+            sample = sample_index(replicas, mould.mould_id, replica)
+            write_sample(store, sample, fields, meta, status)
+            summary[f"{mould.mould_id}/{replica}"] = status
+    write_json_atomic(out_summary, summary)
+    return summary
+
+
+# --- 5. the finished dataset ------------------------------------------------------------------
+
+class IncompleteStoreError(RuntimeError):
+    """Samples the store should hold are missing or corrupt; the message names them."""
+
+
+def finish_dataset(store: str | Path, out_csv: str | Path) -> pd.DataFrame:
+    """Derive the expected fields of replicated moulds, then write the per-sample table.
+    IncompleteStoreError when a sample is missing, pending or corrupt."""
+    table = check_store(store)
+    bad = table[~table["state"].isin(["ok", "failed"])]
+    if len(bad):
+        shown = ", ".join(f"{r.sample} ({r.state})" for r in bad.head(12).itertuples())
+        raise IncompleteStoreError(f"{len(bad)} sample(s) of {store} are not finished: {shown}; "
+                                   "rerun the workflow (it repairs what is missing)")
+    n = write_expected(store)
+    table.to_csv(out_csv, index=False)
+    log.info("%s: %s; %d replicated moulds", store,
+             table["state"].value_counts().to_dict(), n)
+    return table
+
+
+def mould_gallery(moulds_jsons, n: int, out_png: str | Path, out_csv: str | Path) -> None:
+    """The first `n` moulds drawn, and the regime/removal frequencies of all of them."""
+    moulds = [m for path in moulds_jsons for m in load_moulds(path)]
+    plots.mould_gallery(moulds[:n], out_png)
+    regime_table(moulds).to_csv(out_csv)
+
+
+def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[int]:
+    """The mould and 8 fields of the first `n` ok samples."""
+    ds = open_store(store)
+    ok = np.flatnonzero(ds["status"].values.astype(str) == "ok")[:n]
+    if len(ok) == 0:
+        raise IncompleteStoreError(f"{store} has no finished sample to show")
+    rows = [(f"mould {int(ds['mould'].values[s])}", ds["inputs"].values[s], ds["fields"].values[s])
+            for s in ok]
+    plots.field_panels(rows, out_png)
+    return [int(s) for s in ok]

@@ -1,0 +1,121 @@
+"""The surrogate's stages: train a variant, evaluate it, evaluate the baselines, gather them.
+
+Training resumes the same way from the workflow and from `condor train`: epochs are written
+to a working checkpoint beside the final one (`.NAME.training.pt`, not a Snakemake output,
+so a killed job's progress survives `--rerun-incomplete`), and the final checkpoint is
+published atomically when training ends.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+from pathlib import Path
+
+import pandas as pd
+
+from condor.config import check_device
+from condor.store import open_store
+from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
+from condor.surrogate.evaluate import combine_summaries
+from condor.surrogate.evaluate import evaluate as evaluate_checkpoint
+from condor.surrogate.evaluate import evaluate_baselines as evaluate_baseline_methods
+from condor.surrogate.train import train as train_loop
+from condor.surrogate.variants import train_config
+
+log = logging.getLogger("condor")
+
+
+def working_checkpoint(checkpoint) -> Path:
+    """Where training writes epoch by epoch, beside the final checkpoint (hidden)."""
+    checkpoint = Path(checkpoint)
+    return checkpoint.with_name(f".{checkpoint.stem}.training{checkpoint.suffix}")
+
+
+def check_checkpoint_path(checkpoint) -> Path:
+    """ValueError when `checkpoint` cannot be a checkpoint file (a directory, a folder that
+    does not exist)."""
+    checkpoint = Path(checkpoint)
+    if checkpoint.is_dir():
+        raise ValueError(f"checkpoint path {str(checkpoint)!r} is a directory; give a file "
+                         "name such as model.pt")
+    return checkpoint
+
+
+def train(store, settings: dict, checkpoint, history_csv=None, threads: int | None = None,
+          device=None, fresh: bool = False, restart_on_mismatch: bool = True,
+          log_line=log.info) -> list[dict]:
+    """Train a variant (flat `settings`, condor.surrogate.variants) on the dataset `store`,
+    resuming its working checkpoint, then publish `checkpoint` and the per-epoch history CSV.
+    A working checkpoint of other settings or data starts over (said in the log) with
+    `restart_on_mismatch` (the workflow: its params changed), else CheckpointMismatchError
+    (the CLI, unless `fresh`, which always starts over)."""
+    checkpoint = check_checkpoint_path(checkpoint)
+    if device is not None:
+        check_device(device, "--device")
+    ds = open_store(store)
+    settings = dict(settings)
+    if threads:
+        settings["num_threads"] = threads
+    cfg = train_config(settings, int(ds.sizes["x"]))
+    work = working_checkpoint(checkpoint)
+    if fresh:
+        work.unlink(missing_ok=True)
+    if work.exists():
+        log_line(f"resuming from {work}")
+    try:
+        history = train_loop(ds, cfg, work, device=device, log=log_line)
+    except CheckpointMismatchError as err:
+        if not restart_on_mismatch:
+            raise CheckpointMismatchError(f"{err} (pass --fresh to start over)") from err
+        log_line(f"starting over: {err}")
+        history = train_loop(ds, cfg, work, device=device, log=log_line, resume=False)
+    tmp = checkpoint.with_name(f".{checkpoint.name}.publish")
+    checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    shutil.copyfile(work, tmp)
+    os.replace(tmp, checkpoint)
+    if history_csv is not None:
+        pd.DataFrame(history).to_csv(history_csv, index=False)
+    return history
+
+
+def check_same_grid(state: dict, ds, checkpoint, store) -> None:
+    """CheckpointMismatchError when a checkpoint was trained on another grid (pixels or pixel
+    size, i.e. another scene) than the store's."""
+    data = state["data"]
+    native, pixel = int(ds.sizes["x"]), ds.attrs.get("pixel_size")
+    trained_pixel = data.get("pixel_size")
+    if data.get("native_size") != native or (
+            pixel is not None and trained_pixel is not None
+            and abs(float(pixel) - float(trained_pixel)) > 1e-9 * float(pixel)):
+        raise CheckpointMismatchError(
+            f"checkpoint {str(checkpoint)!r} was trained on {data.get('native_size')} px of "
+            f"{trained_pixel} l0; store {str(store)!r} is {native} px of {pixel} l0 "
+            f"(scene {ds.attrs.get('scene', {}).get('name')!r}): evaluate it on its own scene")
+
+
+def evaluate(store, checkpoint, out_dir, name: str | None = None, modes=None, device=None,
+             baselines: bool = False, split: str = "test") -> dict:
+    """One variant on `split`: CSV tables in out_dir, figures in out_dir/figures."""
+    if device is not None:
+        check_device(device, "--device")
+    ds = open_store(store)
+    check_same_grid(load_checkpoint(checkpoint), ds, checkpoint, store)
+    out_dir = Path(out_dir)
+    return evaluate_checkpoint(checkpoint, ds, out_dir=out_dir, split=split,
+                               modes=modes, baselines=baselines, device=device, name=name,
+                               figure_dir=out_dir / "figures")
+
+
+def evaluate_baselines(store, out_dir) -> dict:
+    """The baselines alone, with the same tables and figures as `evaluate`."""
+    out_dir = Path(out_dir)
+    return evaluate_baseline_methods(open_store(store), out_dir=out_dir, figure_dir=out_dir / "figures")
+
+
+def summarise(summary_csvs, out_csv) -> pd.DataFrame:
+    """One table of every variant's and baseline's summary row."""
+    table = combine_summaries(summary_csvs)
+    table.to_csv(out_csv)
+    return table

@@ -1,0 +1,142 @@
+"""Every method scored against the expected organisation of the same test moulds.
+
+The truth is the reference ensemble (`reference.reference_ensemble`: the dataset's replicas
+of each test mould). For each method (simulations of `sweep`, surrogates, baselines, and the
+dataset solver's own "single simulation" and "mean of k simulations") this module returns:
+
+- `accuracy` rows: the field error against the expected fields, with the finite-replica noise
+  removed (condor.estimators: an RMS over the 8 normalised fields, pixels and moulds), its
+  bootstrap interval over moulds, the plain (uncorrected) error, per-field errors and the CPU
+  seconds per mould. The row "single simulation" is the noise ceiling: what one run of the
+  dataset's solver scores.
+- `statistics` rows: for each whole-mould statistic of the paper, the method's Pearson r
+  against the replica mean with its interval and n, the ceiling r a perfect predictor reaches
+  against one simulation, the bias (median of method / replica mean - 1) and the paper's r.
+
+Simulations are normalised by their cell count N_c, predictions by their own density sum (the
+paper's rule for predicted fields).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from condor import estimators as est
+from condor.fields import FIELD_NAMES, STATISTICS, normalise
+from condor.metrics import normalise_predicted, paper_r, statistics_frame
+
+ACCURACY_COLUMNS = ("method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
+                    "field_error_hi", "field_error_plain", "field_error_plain_lo",
+                    "field_error_plain_hi", "n_moulds")
+STATISTICS_COLUMNS = ("method", "family", "statistic", "n", "r", "r_lo", "r_hi", "r_ceiling",
+                      "bias", "bias_lo", "bias_hi", "informative", "paper_r", "paper_relation")
+HELD_OUT = ((1, "single simulation"), (2, "mean of 2 simulations"), (4, "mean of 4 simulations"))
+
+
+@dataclass(frozen=True)
+class Answer:
+    """A method's answer for the ensemble's moulds: raw fields (M, 8, H, W) (NaN where it
+    failed), CPU seconds per mould (M,), and whether it is a prediction (normalised by its own
+    density sum) or a simulation (normalised by N_c)."""
+
+    method: str
+    family: str
+    raw: np.ndarray
+    cpu_s: np.ndarray
+    predicted: bool = False
+
+
+def time_predictor(predict_raw, inputs: np.ndarray, repeats: int = 3) -> tuple[np.ndarray, np.ndarray]:
+    """`predict_raw` (inputs (1, 2, H, W) -> raw (1, 8, H, W)) one mould at a time: the raw
+    answers (M, 8, H, W) and the median CPU seconds of `repeats` calls per mould (after one
+    untimed warm-up call)."""
+    raws, seconds = [], []
+    for k in range(len(inputs)):
+        x = inputs[k:k + 1]
+        raw = predict_raw(x)
+        times = []
+        for _ in range(repeats):
+            t0 = time.process_time()
+            raw = predict_raw(x)
+            times.append(time.process_time() - t0)
+        raws.append(np.asarray(raw, dtype=np.float32)[0])
+        seconds.append(float(np.median(times)))
+    return np.stack(raws), np.array(seconds)
+
+
+def _normalised(answer: Answer, n_cells: np.ndarray) -> np.ndarray:
+    if answer.predicted:
+        return normalise_predicted(answer.raw).astype(np.float64)
+    return normalise(answer.raw.astype(np.float64), n_cells)
+
+
+def _statistics(raw: np.ndarray, pixel_size: float, n_cells) -> np.ndarray:
+    """(M, n_statistics) of raw fields (M, 8, H, W); n_cells None: own density sums."""
+    return np.array(statistics_frame(raw, pixel_size, n_cells=n_cells)[list(STATISTICS)],
+                    dtype=np.float64)
+
+
+def _error_row(method: str, family: str, cpu: float, err: est.SquaredError,
+               per_field: np.ndarray, seed: int) -> dict:
+    value, lo, hi = est.bootstrap_interval(err.corrected, seed=seed)
+    plain, plain_lo, plain_hi = est.bootstrap_interval(err.plain, seed=seed)
+    row = {"method": method, "family": family, "cpu_s_per_mould": cpu, "field_error": value,
+           "field_error_lo": lo, "field_error_hi": hi, "field_error_plain": plain,
+           "field_error_plain_lo": plain_lo, "field_error_plain_hi": plain_hi,
+           "n_moulds": int(len(err.corrected))}
+    row.update({f"error_{f}": est.root_mean(per_field[:, k]) for k, f in enumerate(FIELD_NAMES)})
+    return row
+
+
+def _statistic_rows(method: str, family: str, answer_stats: np.ndarray,
+                    replica_stats: np.ndarray, seed: int) -> list[dict]:
+    rows = []
+    for k, name in enumerate(STATISTICS):
+        keep = np.isfinite(answer_stats[:, k]) & np.isfinite(replica_stats[:, :, k]).all(axis=1)
+        agreement = est.statistic_agreement(answer_stats[keep, k], replica_stats[keep][:, :, k],
+                                            seed=seed) if keep.sum() >= 2 else \
+            {"n": int(keep.sum()), "informative": False}
+        reference, relation = paper_r(name)
+        rows.append({"method": method, "family": family, "statistic": name, **agreement,
+                     "paper_r": reference, "paper_relation": relation})
+    return rows
+
+
+def accuracy_tables(ensemble, answers, seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:
+    """(accuracy, statistics) tables (module docstring) of `answers` on `ensemble`."""
+    truth = ensemble.normalised  # (M, R, 8, H, W)
+    m, r = truth.shape[:2]
+    replica_stats = np.stack([_statistics(ensemble.raw[:, j], ensemble.pixel_size,
+                                          ensemble.n_cells) for j in range(r)], axis=1)
+    solver_cpu = float(np.median(ensemble.seconds))
+    accuracy, statistics = [], []
+    for k, label in HELD_OUT:
+        if k + 2 > r:
+            continue
+        err = est.held_out_error(truth, k)
+        per_field = est.held_out_error(truth, k, per_field=True).corrected
+        accuracy.append(_error_row(label, "dataset solver", k * solver_cpu, err, per_field, seed))
+        held_stats = replica_stats[:, :k].mean(axis=1)
+        statistics += _statistic_rows(label, "dataset solver", held_stats, replica_stats[:, k:],
+                                      seed)
+    for answer in answers:
+        if answer.raw.shape != ensemble.raw.shape[:1] + ensemble.raw.shape[2:]:
+            raise ValueError(f"answer {answer.method!r} has shape {answer.raw.shape}, the "
+                             f"ensemble's moulds need {ensemble.raw.shape[:1] + ensemble.raw.shape[2:]}")
+        normalised = _normalised(answer, ensemble.n_cells)
+        ok = np.isfinite(normalised).all(axis=(1, 2, 3))
+        if not ok.any():
+            continue
+        err = est.mse_against_expected(normalised[ok], truth[ok])
+        per_field = est.mse_against_expected(normalised[ok], truth[ok], per_field=True).corrected
+        accuracy.append(_error_row(answer.method, answer.family,
+                                   float(np.median(answer.cpu_s[ok])), err, per_field, seed))
+        stats = _statistics(answer.raw, ensemble.pixel_size,
+                            None if answer.predicted else ensemble.n_cells)
+        stats[~ok] = np.nan
+        statistics += _statistic_rows(answer.method, answer.family, stats, replica_stats, seed)
+    return (pd.DataFrame(accuracy), pd.DataFrame(statistics, columns=list(STATISTICS_COLUMNS)))

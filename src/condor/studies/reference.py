@@ -1,0 +1,100 @@
+"""The recipes every study shares, each written once.
+
+- `anneal_then_fire`: the paper's anneal for `budget` moves per cell from the lattice (random
+  orientations of `seed`), then FIRE to a tight force tolerance. It is the accuracy study's
+  "long anneal" and every rung of the anneal ladder.
+- `reference_ensemble`: what every accuracy figure is measured against. The expected fields
+  of a mould are the mean of its replicas, the same mould simulated with several seeds; the
+  dataset store keeps them (the test split's replicas), so the ensemble is read, never re-run.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from condor.energy import random_orientations
+from condor.fields import normalise
+from condor.lattice import build_lattice
+from condor.simulate import SimResult, simulate_lattice
+from condor.store import open_store
+
+TIGHT_FTOL = 1.0e-5  # kappa0 l0: the references' force tolerance
+TIGHT_MAX_ITER = 20000  # FIRE evaluations at most after the anneal
+MIN_REPLICAS = 4  # fewer ok replicas than this and a mould is left out of the ensemble
+
+
+def anneal_then_fire(mould, depth: float, budget: float, seed: int,
+                     ftol: float = TIGHT_FTOL) -> SimResult:
+    """Anneal `budget` moves per cell, then FIRE to `ftol`; `seconds` is the sum of both."""
+    lattice = build_lattice(mould.polygon, mould.tethers, depth)
+    start = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
+    annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", budget, seed)
+    if annealed.status != "ok":
+        return annealed
+    result = simulate_lattice(lattice, annealed.positions, annealed.orientations, "minimise",
+                              TIGHT_MAX_ITER, seed, ftol)
+    result.seconds += annealed.seconds
+    result.budget = float(budget)
+    result.info["anneal_seconds"] = annealed.seconds
+    result.info["anneal_energy"] = annealed.energy
+    result.info.update({k: v for k, v in annealed.info.items() if k.startswith("anneal_")})
+    return result
+
+
+@dataclass(frozen=True)
+class Ensemble:
+    """Replicas of M moulds: raw fields (M, R, 8, H, W), cell counts N_c (M,), inputs
+    (M, 2, H, W), the pixel side in l0, and per replica (M, R) its CPU seconds and energy per
+    cell."""
+
+    moulds: np.ndarray
+    raw: np.ndarray
+    n_cells: np.ndarray
+    inputs: np.ndarray
+    pixel_size: float
+    seconds: np.ndarray
+    energy_per_cell: np.ndarray
+
+    @property
+    def normalised(self) -> np.ndarray:
+        """Fields x N_p / N_c (M, R, 8, H, W), float64."""
+        return normalise(self.raw.astype(np.float64), self.n_cells[:, None].repeat(
+            self.raw.shape[1], axis=1))
+
+    @property
+    def n_replicas(self) -> int:
+        return int(self.raw.shape[1])
+
+
+def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ensemble:
+    """The ok replicas of `moulds` (default: every replicated mould) from the store, the same
+    number R for each (the smallest count among them; a mould with fewer than MIN_REPLICAS ok
+    replicas is left out). ValueError when no mould is left."""
+    ds = open_store(store)
+    mould_of = ds["mould"].values
+    replica_of = ds["replica"].values
+    ok = ds["status"].values.astype(str) == "ok"
+    if moulds is None:
+        moulds = [int(m) for m in ds["replicated"].values] if "replicated" in ds.coords else []
+    chosen = []
+    for m in moulds:
+        samples = np.flatnonzero((mould_of == m) & ok)
+        if len(samples) >= MIN_REPLICAS:
+            chosen.append((int(m), samples[np.argsort(replica_of[samples])]))
+    chosen = chosen[:max_moulds]
+    if not chosen:
+        raise ValueError(f"{store}: no mould has {MIN_REPLICAS} or more ok replicas (raise "
+                         "simulation.replicas.test in the config)")
+    r = min(len(s) for _, s in chosen)
+    samples = np.stack([s[:r] for _, s in chosen])
+    flat = samples.ravel()
+    raw = ds["fields"].isel(sample=flat).values.reshape(samples.shape + ds["fields"].shape[1:])
+    return Ensemble(
+        moulds=np.array([m for m, _ in chosen]), raw=raw,
+        n_cells=ds["n_cells"].values[samples[:, 0]].astype(np.float64),
+        inputs=ds["inputs"].isel(sample=samples[:, 0]).values,
+        pixel_size=float(ds.attrs["pixel_size"]),
+        seconds=ds["solver_seconds"].values[flat].reshape(samples.shape),
+        energy_per_cell=(ds["energy"].values[flat] / ds["n_cells"].values[flat]).reshape(samples.shape))

@@ -1,0 +1,528 @@
+"""Tests for condor.drawings: a user's own mould from JSON, SVG and DXF, its placement in a
+scene, the training-domain check, and the SVG/DXF hand-over drawings."""
+
+from __future__ import annotations
+
+import json
+import math
+from xml.etree import ElementTree
+
+import ezdxf
+import numpy as np
+import pytest
+import shapely
+from shapely.geometry import Point, Polygon, box as shapely_box
+
+from condor import drawings as D
+from condor.lattice import build_lattice
+from condor.moulds import InvalidMouldError, Mould, generate_mould, input_channels, save_json
+from condor.scenes import get_scene
+from condor.simulate import simulate
+
+TINY = get_scene("tiny")  # box 15.625 l0, depth 2, 32 px
+SVG_NS = "{http://www.w3.org/2000/svg}"
+
+# A mould drawn from scratch: a 0.2 x 0.12 mm rectangle and two tethers (radius 0.016 and
+# 0.024 mm), in an SVG whose user unit is 0.25 mm / 25 = 0.01 mm. With l0 = 16 um this is
+# 12.5 x 7.5 l0 and tethers of radius 1 and 1.5 l0.
+SCRATCH_SVG = """<svg xmlns="http://www.w3.org/2000/svg" width="0.25mm" height="0.15mm"
+     viewBox="0 0 25 15">
+  <rect id="mould" x="2.5" y="1.5" width="20" height="12" fill="#ccc"/>
+  <circle id="left" cx="7.5" cy="4.5" r="1.6"/>
+  <circle id="right" cx="17.5" cy="10.5" r="2.4"/>
+  <text x="1" y="14">a note, ignored</text>
+  <line x1="2.5" y1="14" x2="22.5" y2="14" stroke="black"/>
+</svg>
+"""
+L0_UM = 16.0
+# Hand computation. The rectangle (12.5 x 7.5 l0) is centred in the 15.625 l0 box: x from
+# 1.5625, top edge at y = 7.8125 + 3.75 = 11.5625. SVG's y points down, the mould's up. The
+# left tether is (5, 3) user units = (0.05, 0.03) mm = (3.125, 1.875) l0 right of and below
+# the rectangle's top-left corner; the right one (15, 9) = (9.375, 5.625) l0.
+EXPECTED_BOUNDS = (1.5625, 4.0625, 14.0625, 11.5625)
+EXPECTED_TETHERS = np.array([[1.5625 + 3.125, 11.5625 - 1.875, 1.0],
+                             [1.5625 + 9.375, 11.5625 - 5.625, 1.5]])
+
+
+def _write(path, text):
+    path.write_text(text)
+    return path
+
+
+def _scratch_dxf(path, lines: bool = False):
+    """The same mould as SCRATCH_SVG, in a DXF in mm ($INSUNITS = 4), y up: the rectangle
+    as one closed polyline or as four LINEs."""
+    doc = ezdxf.new(units=4)
+    msp = doc.modelspace()
+    corners = [(0.025, 0.015), (0.225, 0.015), (0.225, 0.135), (0.025, 0.135)]
+    if lines:
+        for a, b in zip(corners, corners[1:] + corners[:1]):
+            msp.add_line(a, b)
+    else:
+        msp.add_lwpolyline(corners, close=True)
+    # y up: the left tether is 0.03 mm below the top edge (0.135 mm)
+    msp.add_circle((0.075, 0.105), 0.016)
+    msp.add_circle((0.175, 0.045), 0.024)
+    msp.add_text("a note, ignored")
+    doc.saveas(path)
+    return path
+
+
+def _assert_scratch_geometry(mould: Mould):
+    np.testing.assert_allclose(mould.polygon.bounds, EXPECTED_BOUNDS, atol=1e-9)
+    assert mould.polygon.area == pytest.approx(12.5 * 7.5, rel=1e-12)
+    order = np.argsort(mould.tethers[:, 0])
+    np.testing.assert_allclose(mould.tethers[order], EXPECTED_TETHERS, atol=1e-9)
+    assert not mould.is_generated and mould.box == TINY.box
+
+
+def _simulate_and_rasterise(mould: Mould):
+    result = simulate(mould.polygon, mould.tethers, TINY.depth, seed=0)
+    assert result.status == "ok"
+    # every cell started inside the mould; the tethers anchor fixed cells
+    assert result.fixed.any() and (~result.fixed).sum() > 100
+    channels = input_channels(mould, TINY.pixels)
+    pixel_area = (TINY.box / TINY.pixels) ** 2
+    tether_area = math.pi * (mould.tethers[:, 2] ** 2).sum()
+    assert channels[1].sum() * pixel_area == pytest.approx(tether_area, rel=0.2)
+    # the rectangle marks exactly the pixels whose centres it holds (mould or tether)
+    centres = (np.arange(TINY.pixels) + 0.5) * TINY.box / TINY.pixels
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    inside_x = ((centres > xmin) & (centres < xmax)).sum()
+    inside_y = ((centres > ymin) & (centres < ymax)).sum()
+    assert channels.sum() == inside_x * inside_y
+    assert not (channels[0] & channels[1]).any()
+
+
+# --------------------------------------------------------------------------- from scratch
+
+
+def test_svg_drawn_from_scratch_is_placed_simulated_and_rasterised(tmp_path):
+    mould = D.load_mould(_write(tmp_path / "m.svg", SCRATCH_SVG), TINY, l0_um=L0_UM)
+    _assert_scratch_geometry(mould)
+    _simulate_and_rasterise(mould)
+
+
+@pytest.mark.parametrize("lines", [False, True], ids=["polyline", "four lines"])
+def test_dxf_drawn_from_scratch_is_placed_simulated_and_rasterised(tmp_path, lines):
+    mould = D.load_mould(_scratch_dxf(tmp_path / "m.dxf", lines), TINY, l0_um=L0_UM)
+    _assert_scratch_geometry(mould)
+    if not lines:
+        _simulate_and_rasterise(mould)
+
+
+def test_minimal_json_in_micrometres(tmp_path):
+    outline = {"outline": [[25, 15], [225, 15], [225, 135], [25, 135]],
+               "tethers": [[75, 105, 16], [175, 45, 24]], "units": "um"}
+    path = _write(tmp_path / "m.json", json.dumps(outline))
+    _assert_scratch_geometry(D.load_mould(path, TINY, l0_um=L0_UM))
+    # the same outline in l0 needs no l0_um
+    in_l0 = {"outline": [[0, 0], [12.5, 0], [12.5, 7.5], [0, 7.5]],
+             "tethers": [[3.125, 5.625, 1.0], [9.375, 1.875, 1.5]], "units": "l0"}
+    _assert_scratch_geometry(D.load_mould(_write(tmp_path / "l0.json", json.dumps(in_l0)), TINY))
+
+
+# --------------------------------------------------------------------------- units
+
+
+def test_css_px_rule_by_hand(tmp_path):
+    """No unit on width: CSS px. width 100 px over a viewBox 50 wide: a user unit is 2 px
+    = 2 * 25.4 / 96 mm; with l0 = 2 * 25400 / 96 um a user unit is exactly 1 l0."""
+    svg = ('<svg xmlns="http://www.w3.org/2000/svg" width="100" height="60" '
+           'viewBox="0 0 50 30"><rect x="5" y="5" width="10" height="6"/></svg>')
+    path = _write(tmp_path / "px.svg", svg)
+    mould = D.load_mould(path, TINY, l0_um=2 * 25400 / 96)
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 6.0), rel=1e-12)
+    with pytest.raises(D.DrawingError, match="CSS px"):
+        D.load_mould(path, TINY)
+    # declared by the caller: user units are l0
+    mould = D.load_mould(path, TINY, units="l0")
+    assert mould.polygon.area == pytest.approx(60.0, rel=1e-12)
+
+
+def test_inches_in_dxf_by_hand(tmp_path):
+    """$INSUNITS = 1 (inches): a 0.01 x 0.005 in rectangle is 0.254 x 0.127 mm, i.e.
+    10 x 5 l0 at l0 = 25.4 um."""
+    doc = ezdxf.new(units=1)
+    doc.modelspace().add_lwpolyline([(0, 0), (0.01, 0), (0.01, 0.005), (0, 0.005)], close=True)
+    doc.saveas(tmp_path / "in.dxf")
+    mould = D.load_mould(tmp_path / "in.dxf", TINY, l0_um=25.4)
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 5.0), rel=1e-9)
+
+
+def test_unitless_dxf_needs_units(tmp_path):
+    doc = ezdxf.new()
+    doc.units = 0
+    doc.modelspace().add_lwpolyline([(0, 0), (10, 0), (10, 5), (0, 5)], close=True)
+    doc.saveas(tmp_path / "bare.dxf")
+    with pytest.raises(D.DrawingError, match=r"does not state its units .*pass units"):
+        D.load_mould(tmp_path / "bare.dxf", TINY)
+    assert D.load_mould(tmp_path / "bare.dxf", TINY, units="l0").polygon.area == \
+        pytest.approx(50.0)
+    with pytest.raises(D.DrawingError, match="pass l0_um"):
+        D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
+
+
+# --------------------------------------------------------------------------- refusals
+
+
+def _outline(path, outline, tethers=(), units="l0", holes=None):
+    data = {"outline": outline, "tethers": list(tethers), "units": units}
+    if holes is not None:
+        data["holes"] = holes
+    return _write(path, json.dumps(data))
+
+
+SQUARE = [[0, 0], [10, 0], [10, 10], [0, 10]]
+
+
+@pytest.mark.parametrize("outline, tethers, holes, message", [
+    ([[0, 0], [20, 0], [20, 5], [0, 5]], [], None,
+     r"20 l0 wide .*larger than the 'tiny' scene's box of 15.62 l0"),
+    (SQUARE, [[12, 5, 1]], None, r"tethers\[0\] at \(12, 5\) l0 is outside the outline"),
+    (SQUARE, [[9.5, 5, 1]], None, r"tethers\[0\] .* is crossing the outline"),
+    (SQUARE, [[4, 5, 1], [5.5, 5, 1]], None, r"tethers\[0\] and tethers\[1\] overlap"),
+    (SQUARE, [[5, 5, 0]], None, r"tethers\[0\] has radius 0"),
+    ([[0, 0], [10, 10], [10, 0], [0, 10]], [], None,
+     r"the outline is self-intersecting at \(5, 5\) l0"),
+    ([[0, 0], [10, 0], [10, 0.9], [0, 0.9]], [], None, "narrower than a cell"),
+    ([[0, 0], [5, 0], [5, 4.6], [6, 4.6], [6, 0], [11, 0], [11, 10], [6, 10], [6, 5.4],
+      [5, 5.4], [5, 10], [0, 10]], [], None, "neck narrower than a cell"),  # 0.8 l0 neck
+    ([[0, 0], [2, 0], [2, 2], [0, 2]], [[1, 1, 0.95]], None, "no room for a mobile cell"),
+    (SQUARE, [], [[[8, 8], [12, 8], [12, 12], [8, 12]]], r"holes\[0\] is not inside"),
+    (SQUARE, [[5, 5, 1]], [[[4, 4], [6, 4], [6, 6], [4, 6]]],
+     r"tethers\[0\] .* outside the outline"),
+    ([[0, 0], [10, 0]], [], None, "at least 3 points"),
+])
+def test_refusals_name_the_reason(tmp_path, outline, tethers, holes, message):
+    path = _outline(tmp_path / "bad.json", outline, tethers, holes=holes)
+    with pytest.raises(InvalidMouldError, match=message) as caught:
+        D.load_mould(path, TINY)
+    assert "bad.json" in str(caught.value)
+    assert isinstance(caught.value, ValueError)
+
+
+def test_too_large_in_mm_says_both_units(tmp_path):
+    path = _outline(tmp_path / "big.json", [[0, 0], [1, 0], [1, 0.5], [0, 0.5]], units="mm")
+    with pytest.raises(InvalidMouldError, match=r"50 l0 = 1 mm wide .*15.62 l0 = 0.3125 mm"):
+        D.load_mould(path, TINY, l0_um=20.0)
+
+
+SVG_HEAD = '<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 20 20" data-units="l0">'
+
+
+@pytest.mark.parametrize("body, message", [
+    ('<rect id="a" x="1" y="1" width="5" height="5"/><rect id="b" x="8" y="8" width="5" '
+     'height="5"/>', r'2 closed shapes .*<rect id="a">, <rect id="b">; keep exactly one'),
+    ('<circle cx="5" cy="5" r="1"/><circle cx="9" cy="5" r="1"/><path d="M 0 0 L 5 5"/>',
+     r"no closed outline .*found 2 circle\(s\) \(tethers\) and 1 open"),
+    ('<rect x="1" y="1" width="12" height="12"/><ellipse id="e" cx="5" cy="5" rx="1" ry="2"/>',
+     r'<ellipse id="e"> is an ellipse .*not a circle'),
+    ('<rect x="1" y="1" width="12" height="12"/><rect x="2" y="2" width="8" height="8"/>'
+     '<rect id="island" x="4" y="4" width="2" height="2"/>',
+     r'<rect id="island"> lies inside a hole'),
+])
+def test_svg_refusals_name_the_shapes(tmp_path, body, message):
+    path = _write(tmp_path / "bad.svg", SVG_HEAD + body + "</svg>")
+    with pytest.raises(InvalidMouldError, match=message):
+        D.load_mould(path, TINY)
+
+
+@pytest.mark.parametrize("kwargs, message", [
+    ({"l0_um": -1.0}, "l0_um = -1.0 must be a positive number"),
+    ({"l0_um": float("nan")}, "l0_um = nan"),
+    ({"l0_um": True}, "l0_um = True"),
+    ({"units": "inch"}, "units = 'inch'"),
+    ({"units": "mm"}, "states its units .*contradicts"),
+])
+def test_bad_arguments_are_named(tmp_path, kwargs, message):
+    path = _write(tmp_path / "m.svg", SVG_HEAD + '<rect x="1" y="1" width="9" height="9"/></svg>')
+    with pytest.raises(D.DrawingError, match=message):
+        D.load_mould(path, TINY, **kwargs)
+
+
+def test_file_level_errors(tmp_path):
+    with pytest.raises(D.DrawingError, match="unknown mould file type '.png'"):
+        D.load_mould(_write(tmp_path / "m.png", "x"), TINY)
+    with pytest.raises(D.DrawingError, match="not valid JSON"):
+        D.load_mould(_write(tmp_path / "m.json", "{"), TINY)
+    with pytest.raises(D.DrawingError, match=r"unknown key\(s\) \['tether'\]"):
+        D.load_mould(_write(tmp_path / "k.json", json.dumps(
+            {"outline": SQUARE, "tether": [], "units": "l0"})), TINY)
+    with pytest.raises(D.DrawingError, match=r"does not state its units \('units'\)"):
+        D.load_mould(_write(tmp_path / "u.json", json.dumps({"outline": SQUARE})), TINY)
+    with pytest.raises(D.DrawingError, match="is drawn in mm .*pass l0_um"):
+        D.load_mould(_outline(tmp_path / "mm.json", SQUARE, units="mm"), TINY)
+    with pytest.raises(D.DrawingError, match="not a readable SVG"):
+        D.load_mould(_write(tmp_path / "x.svg", "<svg"), TINY)
+    with pytest.raises(D.DrawingError, match="not a readable DXF"):
+        D.load_mould(_write(tmp_path / "x.dxf", "garbage"), TINY)
+
+
+def test_generator_json_is_read_as_before(tmp_path):
+    mould = generate_mould(3, 1, box=TINY.box)
+    save_json(mould, tmp_path / "g.json")
+    again = D.load_mould(tmp_path / "g.json", TINY)
+    assert again.to_dict() == mould.to_dict()
+    assert D.load_mould(tmp_path / "g.json", TINY, fit=True).to_dict() == mould.to_dict()
+    with pytest.raises(InvalidMouldError, match="pass the matching scene"):
+        D.load_mould(tmp_path / "g.json", get_scene("default"))
+
+
+# --------------------------------------------------------------------------- curves, holes
+
+
+def test_arcs_are_flattened_within_the_tolerance(tmp_path):
+    """A round outline drawn as two SVG arcs (radius 5 l0): every vertex lies on the circle
+    and every chord's sagitta (radius minus the distance of its midpoint) is at most
+    FLATTEN_TOLERANCE_L0, and not absurdly smaller."""
+    svg = SVG_HEAD + '<path d="M 2 7 A 5 5 0 0 1 12 7 A 5 5 0 0 1 2 7 Z"/></svg>'
+    mould = D.load_mould(_write(tmp_path / "round.svg", svg), TINY)
+    xy = np.asarray(mould.polygon.exterior.coords)
+    centre = np.array([TINY.box / 2, TINY.box / 2])
+    np.testing.assert_allclose(np.hypot(*(xy - centre).T), 5.0, atol=1e-9)
+    sagitta = 5.0 - np.hypot(*(0.5 * (xy[1:] + xy[:-1]) - centre).T)
+    assert sagitta.max() <= D.FLATTEN_TOLERANCE_L0
+    assert sagitta.max() > D.FLATTEN_TOLERANCE_L0 / 8
+
+
+def test_bezier_outline_is_within_the_tolerance(tmp_path):
+    """A closed cubic Bezier outline: dense points of the exact curve (Bernstein form) lie
+    within the tolerance of the flattened boundary."""
+    p = np.array([[2, 8], [2, 0], [12, 0], [12, 8]], float)
+    svg = SVG_HEAD + (f'<path d="M {p[0, 0]} {p[0, 1]} C {p[1, 0]} {p[1, 1]} {p[2, 0]} '
+                      f'{p[2, 1]} {p[3, 0]} {p[3, 1]} Z"/></svg>')
+    drawing = D.read_drawing(_write(tmp_path / "bez.svg", svg))
+    t = np.linspace(0, 1, 2001)[:, None]
+    curve = ((1 - t) ** 3 * p[0] + 3 * (1 - t) ** 2 * t * p[1] + 3 * (1 - t) * t**2 * p[2]
+             + t**3 * p[3]) * [1, -1]  # read_drawing mirrors SVG's y
+    distance = shapely.distance(drawing.polygon.exterior, shapely.points(curve))
+    assert distance.max() <= D.FLATTEN_TOLERANCE_L0 * 1.01
+
+
+def test_closed_shapes_inside_the_outline_are_holes(tmp_path):
+    svg = SVG_HEAD + ('<path d="M 1 1 H 13 V 13 H 1 Z M 5 5 V 9 H 9 V 5 Z"/>'
+                      '<circle cx="3" cy="3" r="1"/></svg>')
+    mould = D.load_mould(_write(tmp_path / "hole.svg", svg), TINY)
+    assert len(mould.polygon.interiors) == 1
+    assert mould.polygon.area == pytest.approx(144 - 16)
+    channels = input_channels(mould, TINY.pixels)
+    centre = TINY.pixels // 2
+    assert channels[:, centre, centre].sum() == 0  # the hole is neither mould nor tether
+
+
+def test_a_lone_enclosing_circle_is_a_round_outline(tmp_path):
+    svg = SVG_HEAD + '<circle cx="8" cy="8" r="6"/><circle cx="8" cy="8" r="1"/></svg>'
+    mould = D.load_mould(_write(tmp_path / "round.svg", svg), TINY)
+    # an inscribed polygon whose chords have sagitta <= tol: short of the disk by less
+    # than perimeter * tol
+    exact = math.pi * 36
+    assert exact - 2 * math.pi * 6 * D.FLATTEN_TOLERANCE_L0 < mould.polygon.area <= exact
+    np.testing.assert_allclose(mould.tethers, [[TINY.box / 2, TINY.box / 2, 1.0]], atol=1e-9)
+
+
+# --------------------------------------------------------------------------- fit, domain
+
+
+def test_fit_scales_to_the_training_area_keeping_the_shape(tmp_path):
+    path = _outline(tmp_path / "small.json", [[0, 0], [4, 0], [4, 3], [0, 3]],
+                    tethers=[[1, 1.5, 0.5], [3, 1.5, 0.25]])
+    kept = D.load_mould(path, TINY)
+    fitted = D.load_mould(path, TINY, fit=True)
+    target = TINY.area_fraction * TINY.box**2
+    assert fitted.polygon.area == pytest.approx(target, rel=1e-12)
+    factor = math.sqrt(target / 12.0)
+    xmin, ymin, xmax, ymax = fitted.polygon.bounds
+    assert (xmax - xmin, ymax - ymin) == pytest.approx((4 * factor, 3 * factor), rel=1e-12)
+    np.testing.assert_allclose(fitted.tethers[:, 2], kept.tethers[:, 2] * factor, rtol=1e-12)
+    centre = TINY.box / 2
+    np.testing.assert_allclose(fitted.tethers[:, :2] - centre,
+                               (kept.tethers[:, :2] - centre) * factor, atol=1e-9)
+    assert not any("area" in w for w in D.training_domain_check(fitted, TINY))
+    with pytest.raises(D.OutsideTrainingDomainError, match=r"area is 0.0492 of the box"):
+        D.training_domain_check(kept, TINY)
+    too_long = _outline(tmp_path / "long.json", [[0, 0], [14, 0], [14, 0.5], [0, 0.5]])
+    with pytest.raises(InvalidMouldError, match="scaled to the training area .* too elongated"):
+        D.load_mould(too_long, TINY, fit=True)
+
+
+def _square_mould(fraction, tethers=()) -> Mould:
+    side = math.sqrt(fraction) * TINY.box
+    lo = (TINY.box - side) / 2
+    return Mould(box=TINY.box, polygon=shapely_box(lo, lo, lo + side, lo + side),
+                 tethers=np.asarray(tethers, float).reshape(-1, 3))
+
+
+def test_training_domain_rules():
+    assert D.training_domain_check(_square_mould(0.4 * 1.05), TINY) == []
+    (warning,) = D.training_domain_check(_square_mould(0.4 * 1.3), TINY)
+    assert "+30%" in warning and "extrapolates" in warning
+    (warning,) = D.training_domain_check(_square_mould(0.4 * 0.7), TINY)
+    assert "-30%" in warning
+    for fraction in (0.4 * 0.45, 0.4 * 1.55):
+        with pytest.raises(D.OutsideTrainingDomainError, match="simulate it"):
+            D.training_domain_check(_square_mould(fraction), TINY)
+    with pytest.raises(D.OutsideTrainingDomainError, match="15.625 l0 box, the 'default'"):
+        D.training_domain_check(_square_mould(0.4), get_scene("default"))
+    c = TINY.box / 2
+    warnings = D.training_domain_check(_square_mould(0.4, [[c, c, 3.0], [c - 4, c, 0.1]]), TINY)
+    assert any("2 tethers" in w for w in warnings)
+    assert any("radii 3, 0.1 l0 (tethers 0, 1)" in w for w in warnings)
+
+
+def test_hidden_tethers_match_the_input_channel():
+    """The 'covers no pixel centre' warning names exactly the tethers whose disk marks no
+    pixel of input_channels (checked tether by tether)."""
+    c = TINY.box / 2
+    pixel = TINY.box / TINY.pixels
+    # pixel centres sit at (i + 0.5) * pixel and c = 16 pixels is a pixel corner: a small
+    # tether there reaches no centre, a large one does, and a small one on a centre does
+    tethers = [[c, c, 0.3 * pixel], [c - 3, c, 1.0],
+               [c + 4.5 * pixel, c - 5.5 * pixel, 0.2 * pixel]]
+    mould = _square_mould(0.4, tethers)
+    hidden = []
+    for i, t in enumerate(tethers):
+        single = Mould(box=mould.box, polygon=mould.polygon, tethers=np.array([t]))
+        if input_channels(single, TINY.pixels)[1].sum() == 0:
+            hidden.append(i)
+    assert hidden == [0]
+    (warning,) = [w for w in D.training_domain_check(mould, TINY) if "pixel" in w]
+    assert warning.startswith("tethers 0 cover no pixel centre")
+
+
+def test_generated_moulds_are_inside_the_training_domain():
+    for i in range(40):
+        mould = generate_mould(5, i, box=TINY.box, area_fraction=TINY.area_fraction,
+                               max_extent=TINY.max_extent)
+        warnings = [w for w in D.training_domain_check(mould, TINY) if "pixel" not in w]
+        assert warnings == [], (i, warnings)
+
+
+# --------------------------------------------------------------------------- writers
+
+
+def _user_mould_with_hole() -> Mould:
+    outer = Polygon([(3, 3), (13, 4), (12, 12), (4, 11)],
+                    [[(6, 6), (8, 6), (8, 8), (6, 8)]])
+    return Mould(box=TINY.box, polygon=shapely.affinity.translate(outer, 0, 0),
+                 tethers=np.array([[4.5, 5, 0.6], [10.5, 9.5, 0.9]]))
+
+
+@pytest.mark.parametrize("l0_um", [None, 15.0])
+@pytest.mark.parametrize("writer", [D.write_svg, D.write_dxf], ids=["svg", "dxf"])
+def test_written_drawings_read_back_to_the_same_geometry(tmp_path, writer, l0_um):
+    moulds = [generate_mould(7, i, box=TINY.box) for i in range(4)]
+    moulds.append(D.place_mould(_user_mould_with_hole().polygon,
+                                _user_mould_with_hole().tethers, TINY))
+    suffix = ".svg" if writer is D.write_svg else ".dxf"
+    for k, mould in enumerate(moulds):
+        path = tmp_path / f"m{k}{suffix}"
+        writer(mould, path, l0_um=l0_um)
+        again = D.load_mould(path, TINY, l0_um=l0_um)
+        assert again.polygon.symmetric_difference(mould.polygon).area < 1e-6
+        assert len(again.polygon.interiors) == len(mould.polygon.interiors)
+        np.testing.assert_allclose(again.tethers, mould.tethers, atol=1e-7)
+
+
+def test_svg_opens_as_a_drawing_with_dimensions(tmp_path):
+    mould = generate_mould(7, 2, box=TINY.box)
+    D.write_svg(mould, tmp_path / "m.svg", l0_um=20.0)
+    root = ElementTree.parse(tmp_path / "m.svg").getroot()  # well-formed XML
+    assert root.tag == SVG_NS + "svg" and root.get("data-units") == "mm"
+    assert float(root.get("width")) > 100  # a browser shows it at a usable size
+    assert len(root.findall(f".//{SVG_NS}circle")) == mould.n_tethers
+    assert len(root.findall(f".//{SVG_NS}path")) == 1
+    texts = ["".join(t.itertext()) for t in root.iter(SVG_NS + "text")]
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    (width,) = [t for t in texts if t.startswith("width ")]
+    w_l0, w_mm = (float(v) for v in width.replace("width ", "").replace(" mm", "")
+                  .split(" l0 = "))
+    assert w_l0 == pytest.approx(xmax - xmin, rel=1e-3)
+    assert w_mm == pytest.approx((xmax - xmin) * 20.0 / 1000, rel=1e-3)
+    assert any(t.startswith("height ") for t in texts)
+    # the table: one row per tether, diameter in l0 / mm
+    rows = [i for i, t in enumerate(texts) if t.startswith("T") and "/" in texts[i + 1]]
+    assert len(rows) == mould.n_tethers
+    first = rows[0]
+    diameter_l0, diameter_mm = (float(v) for v in texts[first + 3].split(" / "))
+    assert diameter_l0 == pytest.approx(2 * mould.tethers[0, 2], rel=1e-3)
+    assert diameter_mm == pytest.approx(2 * mould.tethers[0, 2] * 0.02, rel=1e-3)
+
+
+def test_dxf_is_at_true_size_in_mm(tmp_path):
+    mould = generate_mould(7, 3, box=TINY.box)
+    D.write_dxf(mould, tmp_path / "m.dxf", l0_um=20.0)
+    doc = ezdxf.readfile(tmp_path / "m.dxf")
+    assert doc.units == 4  # mm
+    circles = doc.modelspace().query("CIRCLE")
+    assert sorted(c.dxf.radius for c in circles) == pytest.approx(
+        sorted(mould.tethers[:, 2] * 0.02))
+    assert len(doc.modelspace().query("DIMENSION")) == 2
+    D.write_dxf(mould, tmp_path / "l0.dxf")
+    doc = ezdxf.readfile(tmp_path / "l0.dxf")
+    assert doc.units == 0 and doc.header.custom_vars.get(D.DXF_UNITS_PROPERTY) == "l0"
+
+
+def test_placed_user_moulds_build_a_lattice(tmp_path):
+    """Drawings accepted by load_mould hold mobile cells (simulate's own precondition)."""
+    for k, body in enumerate([
+        '<rect x="0" y="0" width="1.2" height="9"/>',
+        '<rect x="0" y="0" width="3" height="3"/><circle cx="1.5" cy="1.5" r="0.6"/>',
+        '<path d="M 0 0 L 6 0 L 6 1.2 L 1.2 1.2 L 1.2 6 L 0 6 Z"/>',
+    ]):
+        mould = D.load_mould(_write(tmp_path / f"{k}.svg", SVG_HEAD + body + "</svg>"), TINY)
+        lattice = build_lattice(mould.polygon, mould.tethers, TINY.depth)
+        assert (~lattice.fixed).any()
+        assert mould.polygon.contains(Point(TINY.box / 2, TINY.box / 2)) or k == 2
+
+
+def test_dxf_blocks_are_expanded_and_hidden_layers_ignored(tmp_path):
+    """A CAD file as drawn by hand: the tether is a block inserted twice, a construction
+    rectangle sits on a layer that is off, and a hatch fills the outline."""
+    doc = ezdxf.new(units=4)
+    post = doc.blocks.new("POST")
+    post.add_circle((0, 0), 0.01)
+    doc.layers.add("CONSTRUCTION").off()
+    msp = doc.modelspace()
+    outline = [(0, 0), (0.2, 0), (0.2, 0.1), (0, 0.1)]
+    msp.add_lwpolyline(outline, close=True)
+    msp.add_hatch().paths.add_polyline_path(outline, is_closed=True)
+    msp.add_lwpolyline([(-1, -1), (1, -1), (1, 1), (-1, 1)], close=True,
+                       dxfattribs={"layer": "CONSTRUCTION"})
+    msp.add_blockref("POST", (0.05, 0.05))
+    msp.add_blockref("POST", (0.15, 0.05))
+    doc.saveas(tmp_path / "cad.dxf")
+    mould = D.load_mould(tmp_path / "cad.dxf", TINY, l0_um=20.0)  # 10 x 5 l0, r = 0.5 l0
+    assert mould.polygon.area == pytest.approx(50.0, rel=1e-9)
+    np.testing.assert_allclose(np.sort(mould.tethers[:, 0]) - mould.polygon.bounds[0],
+                               [2.5, 7.5], atol=1e-9)
+    np.testing.assert_allclose(mould.tethers[:, 2], 0.5, rtol=1e-9)
+
+
+def test_an_inkscape_style_svg(tmp_path):
+    """Namespaced editor attributes, a layer group with a transform, tethers as <use> of a
+    circle in <defs>, a Bezier edge: 80 x 60 mm page, outline 50 mm wide."""
+    svg = """<?xml version="1.0" encoding="UTF-8" standalone="no"?>
+<svg width="80mm" height="60mm" viewBox="0 0 80 60" version="1.1"
+   xmlns:inkscape="http://www.inkscape.org/namespaces/inkscape"
+   xmlns:sodipodi="http://sodipodi.sourceforge.net/DTD/sodipodi-0.dtd"
+   xmlns:xlink="http://www.w3.org/1999/xlink" xmlns="http://www.w3.org/2000/svg">
+  <sodipodi:namedview id="nv" inkscape:document-units="mm"/>
+  <defs><circle id="post" r="2" cx="0" cy="0"/></defs>
+  <g inkscape:label="Layer 1" inkscape:groupmode="layer" transform="translate(10,5)">
+    <path id="outline" d="m 0,0 h 50 v 40 c -10,10 -40,10 -50,0 z"/>
+    <use xlink:href="#post" transform="translate(15,20)"/>
+    <use xlink:href="#post" x="35" y="20"/>
+    <text x="0" y="55"><tspan>note</tspan></text>
+  </g>
+</svg>"""
+    mould = D.load_mould(_write(tmp_path / "ink.svg", svg), TINY, l0_um=4000.0)  # 4 mm = 1 l0
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    assert xmax - xmin == pytest.approx(12.5)  # 50 mm
+    # the Bezier bottom edge dips 7.5 mm below the 40 mm sides
+    assert ymax - ymin == pytest.approx(47.5 / 4, abs=D.FLATTEN_TOLERANCE_L0)
+    assert sorted(mould.tethers[:, 0] - xmin) == pytest.approx([15 / 4, 35 / 4])
+    np.testing.assert_allclose(mould.tethers[:, 1], ymax - 20 / 4)  # 20 mm below the top
+    np.testing.assert_allclose(mould.tethers[:, 2], 0.5)

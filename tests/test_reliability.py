@@ -1,0 +1,189 @@
+"""Nothing lost, nothing mixed: the workflow and the CLI under a careless user's mistakes.
+
+Each test copies one finished tiny dataset (built once per module, `--until dataset`) and
+makes one mistake on the copy."""
+
+import shutil
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import xarray as xr
+
+from condor.store import check_store
+from test_workflow import REPO, run, snakemake_args
+
+pytestmark = pytest.mark.slow
+
+# The tiny scene, cut down: 8 moulds in 4 batches, 2 test moulds of 3 replicas.
+SMALL = {"n_moulds": 8, "batch_size": 2, "split": {"test": 2},
+         "simulation": {"replicas": {"test": 3}}}
+
+
+def small_args(workdir, *extra):
+    import yaml
+
+    workdir.mkdir(parents=True, exist_ok=True)
+    (workdir / "small.yaml").write_text(yaml.safe_dump(SMALL))
+    return ("--configfile", str(REPO / "config" / "tiny.yaml"), str(workdir / "small.yaml"),
+            *extra)
+
+
+@pytest.fixture(scope="module")
+def finished(tmp_path_factory):
+    workdir = tmp_path_factory.mktemp("finished")
+    run(workdir, *small_args(workdir, "--until", "dataset"))
+    return workdir
+
+
+@pytest.fixture
+def folder(finished, tmp_path):
+    """A private copy of the finished folder (mtimes kept, so nothing looks stale)."""
+    copy = tmp_path / "work"
+    shutil.copytree(finished, copy, symlinks=True)
+    return copy
+
+
+def store(workdir):
+    return workdir / "results" / "dataset.zarr"
+
+
+def fields_of(workdir):
+    return xr.open_zarr(store(workdir))["fields"].values
+
+
+def test_forcerun_init_store_keeps_every_sample(folder):
+    before = fields_of(folder)
+    run(folder, *small_args(folder, "--until", "dataset", "--forcerun", "init_store"))
+    assert (check_store(store(folder))["state"] == "ok").all()
+    np.testing.assert_array_equal(fields_of(folder), before)
+
+
+def test_store_created_but_not_recorded_is_kept(folder):
+    """The window between the store's creation and init_store's completion (a kill there):
+    the store exists, the job's output does not. The rerun keeps the store and finishes."""
+    before = fields_of(folder)
+    (folder / "results" / "dataset.json").unlink()
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert "rule init_store" in proc.stderr
+    np.testing.assert_array_equal(fields_of(folder), before)
+
+
+@pytest.mark.parametrize("change", ["seed=7", "n_moulds=10", "simulation={'solver': 'anneal'}"])
+def test_a_changed_data_key_stops_before_anything_runs(folder, change):
+    proc = run(folder, *small_args(folder, "-n", "--config", change), check=False)
+    out = proc.stdout + proc.stderr
+    assert proc.returncode != 0 and "Nothing to be done" not in out
+    key = change.split("=")[0] if "solver" not in change else "solver"
+    assert key in out and "results" in out and "Traceback" not in out
+
+
+def test_tiny_then_default_into_the_same_folder_stops(folder):
+    proc = run(folder, "-n", "--configfile", str(REPO / "config" / "config.yaml"), check=False)
+    assert proc.returncode != 0 and "scene" in proc.stderr
+
+
+def test_an_interrupted_store_is_never_mixed_with_another_seed(tmp_path):
+    args = small_args(tmp_path, "--until", "dataset")
+    run(tmp_path, *args[:3], "--until", "moulds")  # stopped after the first stage
+    seeds = xr.open_zarr(store(tmp_path))["seed"].values.copy()
+    proc = run(tmp_path, *args, "--config", "seed=7", check=False)
+    assert proc.returncode != 0 and "seed" in proc.stderr
+    np.testing.assert_array_equal(xr.open_zarr(store(tmp_path))["seed"].values, seeds)
+
+
+def test_a_deleted_fields_chunk_is_found_and_repaired(folder):
+    before = fields_of(folder)
+    chunk = store(folder) / "fields" / "c" / "3"
+    shutil.rmtree(chunk)
+    check = subprocess.run([sys.executable, "-m", "condor.cli", "check-store", str(store(folder))],
+                           capture_output=True, text=True)
+    assert check.returncode == 1 and "corrupt: 3" in check.stdout
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert proc.stderr.count("rule fields:") == 1  # only the batch that lost it
+    assert (check_store(store(folder))["state"] == "ok").all()
+    np.testing.assert_array_equal(fields_of(folder), before)
+
+
+def test_a_deleted_simulation_and_status_chunk_are_repaired(folder):
+    before = fields_of(folder)
+    shutil.rmtree(store(folder) / "status" / "c" / "4")
+    for sim in (folder / "results" / "sims" / "batch_0002").glob("*.npz"):
+        sim.unlink()
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert proc.stderr.count("rule simulate:") == 1 and proc.stderr.count("rule fields:") == 1
+    assert (check_store(store(folder))["state"] == "ok").all()
+    np.testing.assert_array_equal(fields_of(folder), before)
+
+
+def test_a_second_run_on_the_same_folder_stops_at_once(folder):
+    (folder / "results" / "dataset_summary.csv").unlink()  # leave work to do
+    lock = folder / "results" / ".condor.lock"
+    first = subprocess.Popen(snakemake_args(folder, *small_args(folder, "--until", "sample_figure"),
+                                            cores=1),
+                             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                             start_new_session=True)
+    try:
+        deadline = time.time() + 120
+        while not lock.exists() and time.time() < deadline and first.poll() is None:
+            time.sleep(0.1)
+        assert lock.exists(), "the first run never took the lock"
+        second = run(folder, *small_args(folder, "--until", "sample_figure"), check=False)
+        assert second.returncode != 0 and "in use by another run" in second.stderr
+    finally:
+        import os
+        import signal
+
+        os.killpg(first.pid, signal.SIGKILL)  # a kill leaves the lock file behind ...
+        first.wait()
+    assert lock.exists()
+    run(folder, *small_args(folder, "--until", "sample_figure"))  # ... found stale, taken over
+    assert not lock.exists()
+
+
+def test_a_results_path_that_is_a_file_is_one_line(tmp_path):
+    (tmp_path / "results").write_text("oops")
+    proc = run(tmp_path, *small_args(tmp_path, "-n"), check=False)
+    assert proc.returncode != 0 and "is a file" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_a_misspelt_key_is_one_line_without_the_schema(tmp_path):
+    proc = run(tmp_path, *small_args(tmp_path, "-n", "--config", "solvr=anneal"), check=False)
+    assert proc.returncode != 0 and "solvr" in proc.stderr
+    assert "properties" not in proc.stderr and len(proc.stderr.splitlines()) < 5
+
+
+def condor(*args, cwd):
+    return subprocess.run([sys.executable, "-m", "condor.cli", *map(str, args)], cwd=cwd,
+                          capture_output=True, text=True)
+
+
+def test_predict_never_replaces_a_dataset_store(folder, tmp_path):
+    """`condor predict --out <store>` leaves the store intact, --force or not."""
+    before = fields_of(folder)
+    fake_checkpoint = tmp_path / "m.pt"
+    fake_checkpoint.write_text("x")
+    mould = next((folder / "results" / "moulds").glob("*.json"))
+    for extra in ((), ("--force",)):
+        proc = condor("predict", mould, "--checkpoint", fake_checkpoint, "--out", store(folder),
+                      *extra, cwd=tmp_path)
+        assert proc.returncode == 2 and "dataset store" in proc.stderr
+    np.testing.assert_array_equal(fields_of(folder), before)
+    assert (check_store(store(folder))["state"] == "ok").all()
+
+
+def test_rasterise_uses_the_simulations_own_scene(folder, tmp_path):
+    sim = next((folder / "results" / "sims" / "batch_0000").glob("*.npz"))
+    proc = condor("rasterise", sim, "--out", tmp_path / "f.npy", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    fields = np.load(tmp_path / "f.npy")
+    assert fields.shape == (8, 32, 32)  # the tiny scene's grid, not the default's 64 px
+    proc = condor("rasterise", sim, "--scene", "default", "--out", tmp_path / "g.npy", cwd=tmp_path)
+    assert proc.returncode == 2 and "tiny" in proc.stderr
+    truncated = tmp_path / "t.npz"
+    truncated.write_bytes(sim.read_bytes()[:300])
+    proc = condor("rasterise", truncated, "--out", tmp_path / "h.npy", cwd=tmp_path)
+    assert proc.returncode == 2 and "t.npz" in proc.stderr and "Traceback" not in proc.stderr

@@ -1,0 +1,166 @@
+"""The studies (condor.studies): the reference recipes, the sweep, the accuracy tables on
+synthetic ensembles with known answers, the convergence study and the ladder on tiny moulds."""
+
+import numpy as np
+import pandas as pd
+import pytest
+from shapely.geometry import box
+
+from condor.energy import random_orientations
+from condor.fields import FIELD_NAMES, normalise
+from condor.lattice import build_lattice
+from condor.moulds import Mould
+from condor.scenes import get_scene
+from condor.simulate import simulate_lattice
+from condor.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
+from condor.studies import accuracy, reference, sweep
+from condor.studies.convergence import convergence
+from condor.studies.ladder import ladder
+
+SCENE = get_scene("tiny", depth=1.5)
+TETHERS = np.array([[4.5, 7.8, 0.9], [11.1, 7.8, 0.9]])
+
+
+def small_mould(mould_id=0):
+    return Mould(mould_id=mould_id, seed=0, symmetry="dihedral", order=2, removal="none",
+                 box=SCENE.box, polygon=box(3, 5, 12.6, 10.6), tethers=TETHERS,
+                 origin=(7.8, 7.8), unpruned_tethers=TETHERS)
+
+
+def test_anneal_then_fire_is_the_anneal_followed_by_tight_fire():
+    mould = small_mould()
+    result = reference.anneal_then_fire(mould, SCENE.depth, 50, seed=3)
+    lattice = build_lattice(mould.polygon, mould.tethers, SCENE.depth)
+    start = random_orientations(lattice.n_cells, np.random.default_rng([3, 1]))
+    annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", 50, 3)
+    again = simulate_lattice(lattice, annealed.positions, annealed.orientations, "minimise",
+                             reference.TIGHT_MAX_ITER, 3, reference.TIGHT_FTOL)
+    assert result.energy == pytest.approx(again.energy, rel=1e-12)
+    assert result.energy < annealed.energy and result.status == "ok"
+    assert result.seconds == pytest.approx(annealed.seconds + again.seconds, rel=0.5)
+
+
+def test_sweep_runs_every_method_once_with_independent_seeds():
+    methods = sweep.study_methods(100, (10,))
+    assert [m.family for m in methods] == ["long anneal", "anneal", "minimise", "hybrid"]
+    rows, fields = sweep.run_methods(small_mould(), SCENE, methods, dataset_seed=7)
+    table = pd.DataFrame(rows).set_index("method")
+    assert fields.shape == (4, 8, SCENE.pixels, SCENE.pixels) and np.isfinite(fields).all()
+    assert (table["status"] == "ok").all() and table["seed"].nunique() == 4
+    converged = table.loc["minimise", "energy_per_cell"]
+    assert table.loc["anneal 10", "energy_per_cell"] > 2 * converged  # unconverged
+    assert table.loc["long anneal 100", "energy_per_cell"] < 1.05 * converged
+    # the density of every answer integrates to the cell count (the mould is inside the grid)
+    assert np.allclose(fields[:, 0].sum(axis=(1, 2)), table["n_cells"], rtol=1e-3)
+
+
+def synthetic_ensemble(rng, moulds=40, replicas=8, sigma=0.3, size=6):
+    """Replicas mu + sigma * noise of raw fields whose density sums to the cell count."""
+    n_cells = rng.integers(200, 400, size=moulds).astype(float)
+    n_pixels = size * size
+    mu = 1.0 + rng.random((moulds, 8, size, size))  # normalised expected fields, positive
+    noise = sigma * rng.normal(size=(moulds, replicas, 8, size, size))
+    noise[:, :, 0] = 0.0  # density: exactly the cell count in every replica
+    mu[:, 0] = n_pixels / mu[:, 0].size * mu[:, 0].size / n_pixels  # P normalised to 1 per pixel
+    normalised = mu[:, None] + noise
+    raw = normalised * (n_cells / n_pixels)[:, None, None, None, None]
+    ens = reference.Ensemble(moulds=np.arange(moulds), raw=raw.astype(np.float32),
+                             n_cells=n_cells, inputs=np.ones((moulds, 2, size, size), np.uint8),
+                             pixel_size=0.5, seconds=np.full((moulds, replicas), 2.0),
+                             energy_per_cell=np.full((moulds, replicas), 0.01))
+    return ens, mu, n_cells, n_pixels
+
+
+def test_accuracy_tables_recover_known_errors_ceiling_and_bias():
+    rng = np.random.default_rng(11)
+    sigma = 0.3
+    ens, mu, n_cells, n_pixels = synthetic_ensemble(rng, sigma=sigma)
+    raw_of = lambda normalised: normalised * (n_cells / n_pixels)[:, None, None, None]  # noqa: E731
+    offset = np.zeros(mu.shape[1:])
+    offset[1:] = 0.2  # every field but P off by 0.2: RMS error sqrt(7/8) * 0.2
+    answers = [accuracy.Answer("perfect", "test", raw_of(mu), np.full(len(mu), 1.0)),
+               accuracy.Answer("offset", "test", raw_of(mu + offset), np.full(len(mu), 3.0))]
+    table, stats = accuracy.accuracy_tables(ens, answers)
+    rows = table.set_index("method")
+    assert list(table["method"][:3]) == ["single simulation", "mean of 2 simulations",
+                                         "mean of 4 simulations"]
+    ceiling = sigma * np.sqrt(7 / 8)  # P carries no noise
+    for method, expected in (("single simulation", ceiling), ("mean of 4 simulations",
+                                                              ceiling / 2),
+                             ("perfect", 0.0), ("offset", 0.2 * np.sqrt(7 / 8))):
+        row = rows.loc[method]
+        assert row.field_error_lo - 0.01 <= expected <= row.field_error_hi + 0.01, (method, row)
+    assert rows.loc["perfect", "field_error_plain"] > 0.05  # the uncorrected error keeps the noise
+    assert rows.loc["offset", "cpu_s_per_mould"] == 3.0
+    assert rows.loc["single simulation", "cpu_s_per_mould"] == 2.0
+    s = stats.set_index(["method", "statistic"])
+    assert abs(s.loc[("perfect", "mean_T"), "bias"]) < 0.01
+    assert s.loc[("offset", "mean_Sx2_norm"), "bias"] == pytest.approx(
+        np.median(0.2 / (mu[:, 2].mean(axis=(1, 2)))), rel=0.05)
+    assert set(stats.columns) >= {"method", "statistic", "r", "r_ceiling", "bias"}
+
+
+def test_accuracy_of_a_prediction_uses_its_own_density_and_skips_failures():
+    rng = np.random.default_rng(12)
+    ens, mu, n_cells, n_pixels = synthetic_ensemble(rng, moulds=12)
+    raw = mu * (n_cells / n_pixels)[:, None, None, None] * 1.3  # every field x 1.3
+    raw[3] = np.nan  # a failed run
+    table, _ = accuracy.accuracy_tables(ens, [accuracy.Answer("scaled", "surrogate", raw,
+                                                              np.ones(12), predicted=True)])
+    row = table.set_index("method").loc["scaled"]
+    assert row.n_moulds == 11
+    assert row.field_error_lo <= 0.0 + 0.02  # normalised by its own density: the scale cancels
+
+
+def test_reference_ensemble_reads_ok_replicas_from_the_store(tmp_path):
+    path = tmp_path / "d.zarr"
+    counts = (1, 4, 5, 1, 4)
+    create_store(path, StoreSpec(5, 8, 0, ("train", "test", "test", "val", "test"),
+                                 {"pixel_size": 0.5}, counts))
+    rng = np.random.default_rng(0)
+    meta = {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
+    for mould in range(5):
+        write_inputs(path, mould, np.ones((2, 8, 8), np.uint8), meta)
+        for r in range(counts[mould]):
+            status = "folded" if (mould, r) == (4, 2) else "ok"
+            write_sample(path, sample_index(counts, mould, r),
+                         rng.random((8, 8, 8)).astype("float32") if status == "ok" else None,
+                         {"sim_seed": r, "n_cells": 100 + mould, "energy": 1.0, "max_force": 0.0,
+                          "solver": "hybrid", "solver_seconds": 1.0 + r, "hardware": "test"}, status)
+    ens = reference.reference_ensemble(path)
+    assert list(ens.moulds) == [1, 2]  # mould 4 has only 3 ok replicas
+    assert ens.raw.shape == (2, 4, 8, 8, 8) and list(ens.n_cells) == [101, 102]
+    assert ens.energy_per_cell[0, 0] == pytest.approx(1 / 101)
+    np.testing.assert_allclose(ens.normalised[0, 0], normalise(ens.raw[0, 0].astype(float), 101))
+    with pytest.raises(ValueError, match="replicas"):
+        reference.reference_ensemble(path, moulds=[4])
+
+
+def test_convergence_reference_rows_are_zero_and_a_thin_slab_is_not_justified():
+    table = convergence(SCENE, [small_mould()], n_seeds=2, depths=(0.8, 1.5), box_scales=())
+    rows = table.set_index("value")
+    assert bool(rows.loc[1.5, "reference"]) and rows.loc[1.5, "change_P"] == 0.0
+    assert rows.loc[0.8, "layers"] == 2 and rows.loc[1.5, "layers"] == 3
+    changes = [rows.loc[0.8, f"change_{f}"] for f in ("P", "T", "Sx2", "Sy2", "Sz2")]
+    assert max(changes) > 0 and not bool(rows.loc[0.8, "justified"])
+    assert {f"noise_{f}" for f in FIELD_NAMES} <= set(table.columns)
+
+
+def test_ladder_finds_its_own_recipe_in_the_same_states():
+    mould = small_mould()
+    runs = [reference.anneal_then_fire(mould, SCENE.depth, 200, seed=50 + k) for k in range(4)]
+    from condor.fields import cell_fields
+
+    raw = np.stack([cell_fields(r.positions, r.orientations, r.tension, SCENE.box, SCENE.pixels,
+                                SCENE.sigma) for r in runs])[None]
+    ens = reference.Ensemble(moulds=np.array([0]), raw=raw, n_cells=np.array([float(runs[0].n_cells)]),
+                             inputs=np.ones((1, 2, SCENE.pixels, SCENE.pixels), np.uint8),
+                             pixel_size=SCENE.pixel_size, seconds=np.ones((1, 4)),
+                             energy_per_cell=np.array([[r.energy_per_cell for r in runs]]))
+    table = ladder(ens, [mould], SCENE, budgets=(200,), n_seeds=3, dataset_seed=0)
+    rung = table[table["rung"] == "anneal 200 + FIRE"].iloc[0]
+    assert rung["runs"] == 3 and np.isfinite(rung["energy_per_cell"])
+    # the same recipe with other seeds: the expected fields agree within the scatter
+    assert rung["distance_to_dataset"] < rung["spread"]
+    with pytest.raises(ValueError, match="not the ensemble"):
+        ladder(ens, [small_mould(5)], SCENE, budgets=(200,), n_seeds=2, dataset_seed=0)

@@ -1,0 +1,7 @@
+"""Every method, surrogate and baseline against the expected fields of the test moulds."""
+from condor.stages import start_job
+from condor.stages.studies import accuracy
+
+accuracy(start_job(snakemake), snakemake.params.store, snakemake.input.sweeps,
+         dict(zip(snakemake.params.variants, snakemake.input.checkpoints)),
+         snakemake.output.accuracy, snakemake.output.statistics, snakemake.output.chart)

@@ -1,0 +1,6 @@
+"""The dataset card (README.md beside the store), generated from the store."""
+from condor.dataset import write_card
+from condor.stages import start_job
+
+config = start_job(snakemake)
+write_card(snakemake.params.store, snakemake.output[0], config.to_dict())
