@@ -158,3 +158,16 @@ def test_prediction_spread_prefers_a_normalised_map():
     assert np.allclose(prediction_spread(P()), 2.0)  # 16 px / 8 cells
     P.spread_normalised = np.full((1, 8, 4, 4), 0.5)
     assert np.allclose(prediction_spread(P()), 0.5)
+
+
+def test_the_search_reports_a_spread_only_when_the_surrogate_has_a_map():
+    objective = parse_objective("alignment:x")
+    space = DesignSpace.from_scene(SCENE, n_tethers=1)
+    plain = search(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=20,
+                   popsize=8, progress=False)
+    assert "predicted_spread" not in plain.designs
+    spread = search(objective, space, SpreadPredictor(SCENE.pixels, SCENE.box, level=0.05),
+                    budget=20, popsize=8, progress=False)
+    assert (spread.designs["predicted_spread"] > 0).all()
+    assert np.allclose(spread.designs.sort_values("design")["objective"],
+                       plain.designs.sort_values("design")["objective"])

@@ -32,9 +32,15 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from condor.moulds import Mould, input_channels
+from condor.scenes import SIGMA_L0
 
 from .objectives import Objective
 from .space import DesignSpace
+
+
+# Monte Carlo draws of the objective's spread per searched design (objective_spread), when
+# the surrogate has a spread map; predict_designs uses more for the designs it reports.
+SEARCH_SPREAD_DRAWS = 16
 
 
 class DesignSearchError(ValueError):
@@ -49,7 +55,9 @@ class SearchResult:
       design (the evaluation index, also the row of `vectors` and the mould id), rank,
       generation (0 = the random probe), restart, score, objective, feasible, violation,
       repair, n_tethers, shrink, duplicate (same raster as a better-ranked design), raster
-      (a hash of the input channels), then one column per objective quantity.
+      (a hash of the input channels), one column per objective quantity, and
+      predicted_spread (objective_spread, the predicted standard deviation of one
+      simulation's objective) when the surrogate has a spread map.
     vectors: (n, dim) design vectors in evaluation order.
     history: one row per generation: evaluations so far, best and median score, CMA sigma.
     """
@@ -160,7 +168,13 @@ class _Evaluator:
         new = [i for k, i in enumerate(new) if hashes[i] not in {hashes[j] for j in new[:k]}]
         if new:
             prediction = self.predictor(np.stack([inputs[i] for i in new]))
-            table = self.objective.evaluate(np.asarray(prediction.normalised))
+            normalised = np.asarray(prediction.normalised, dtype=np.float64)
+            table = self.objective.evaluate(normalised)
+            spread = prediction_spread(prediction)
+            if spread is not None:  # a surrogate with a reproducibility map
+                sigma_px = SIGMA_L0 * self.pixels / self.space.box
+                table["predicted_spread"] = objective_spread(
+                    self.objective, normalised, spread, sigma_px, SEARCH_SPREAD_DRAWS, self.seed)
             for i, row in zip(new, table.to_dict("records")):
                 self.cache[hashes[i]] = row
             self.n_predicted += len(new)
@@ -353,8 +367,6 @@ def predict_designs(objective: Objective, moulds: list[Mould], predictor,
     """Predict the fields and objective of `moulds` (rasterised at the predictor's native
     size). sigma_px: the fields' kernel width in pixels, for objective_spread (default: the
     scene kernel condor.scenes.SIGMA_L0 at the moulds' box)."""
-    from condor.scenes import SIGMA_L0
-
     moulds = list(moulds)
     if not moulds:
         raise ValueError("no moulds to predict")
