@@ -1,0 +1,29 @@
+"""Mould design: objectives on the fields, a parametric mould family, a CMA-ES search scored by
+the surrogate, and confirmation by simulation. See docs/design.md.
+
+    objective = parse_objective("alignment:x", pixels=predictor.native)
+    space = default_space(scene, objective)
+    result = search(objective, space, predictor, budget=2000, seed=0)
+    confirmation = confirm(result, scene, n_top=5, n_random=10, replicas=3, baseline=...)
+"""
+
+from .confirm import (Confirmation, SimulatedDesigns, agreement, baseline_objectives, confirm,
+                      confirmation_table, dataset_baseline, design_summary, design_table,
+                      replica_ceiling,
+                      replica_seeds, select_for_confirmation, simulate_designs, spearman)
+from .objectives import (EmptyRegionError, InfeasibleConstraintError, Objective, ObjectiveError,
+                         Quantity, Region, UnknownObjectiveError, parse_objective)
+from .search import (DesignPrediction, DesignSearchError, SearchResult, objective_spread,
+                     predict_designs, prediction_spread, search)
+from .space import DesignSpace, default_space, symmetry_group
+
+__all__ = [
+    "Confirmation", "SimulatedDesigns", "agreement", "baseline_objectives", "confirm",
+    "confirmation_table", "dataset_baseline", "design_summary", "design_table",
+    "replica_ceiling",
+    "replica_seeds", "select_for_confirmation", "simulate_designs", "spearman",
+    "EmptyRegionError", "InfeasibleConstraintError", "Objective", "ObjectiveError", "Quantity",
+    "Region", "UnknownObjectiveError", "parse_objective", "DesignPrediction",
+    "DesignSearchError", "SearchResult", "objective_spread", "predict_designs",
+    "prediction_spread", "search", "DesignSpace", "default_space", "symmetry_group",
+]
