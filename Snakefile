@@ -16,6 +16,7 @@ include: "workflow/rules/simulate.smk"
 include: "workflow/rules/fields.smk"
 include: "workflow/rules/surrogate.smk"
 include: "workflow/rules/studies.smk"
+include: "workflow/rules/design.smk"
 include: "workflow/rules/report.smk"
 
 

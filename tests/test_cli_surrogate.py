@@ -179,3 +179,17 @@ def test_predict_rejects_bad_inputs(trained, tmp_path, capsys):
     code = run_main(["predict", str(tmp_path / "ok.npy"), "--checkpoint", str(checkpoint),
                      "--out", str(tmp_path / "f.txt")])
     assert code == 2 and "f.txt" in capsys.readouterr().err and not (tmp_path / "f.txt").exists()
+
+
+@pytest.mark.parametrize("objective, words", [
+    ("alignmnt:x", "unknown objective"),
+    ("alignment:x@rect(0.5,0.5,0.5,0.9)", "empty"),
+    ("alignment:x; alignment:x>1.5", "no mould can meet"),
+])
+def test_design_refuses_a_bad_objective_before_any_search(trained, tmp_path, capsys, objective, words):
+    _, checkpoint = trained
+    code = run_main(["design", "--objective", objective, "--checkpoint", str(checkpoint),
+                     "--out", str(tmp_path / "d")])
+    err = capsys.readouterr().err
+    assert code == 2 and words in err and err.count("\n") == 1
+    assert not (tmp_path / "d").exists()  # nothing searched, nothing written

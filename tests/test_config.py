@@ -72,11 +72,13 @@ def test_config_is_frozen_and_the_callers_dict_is_untouched():
         ({"scene_overrides": {"colour": 3}}, "colour"),
         ({"split": {"test": 500}}, "split"),
         ({"split": {"test": 24, "val_fraction": 0.999}}, "val_fraction"),  # no training mould
-        ({"scene_overrides": {"pixels": 36}}, "surrogate/models/unet_l1"),  # 36 px, 3 levels
+        ({"scene_overrides": {"pixels": 36}}, "surrogate/models/unet"),  # 36 px, 3 levels
         ({"surrogate": {"variants": ["unet_l1"], "models": {"unet_l1": {"model": "unet_l1",
                                                                        "epochs": 0}}}}, "epochs"),
         ({"surrogate": {"variants": ["nope"]}}, "nope"),
         ({"surrogate": {"device": "cuda:0"}}, "device"),  # no CUDA on the test machines
+        ({"design": {"objective": "alignmnt:x"}}, "design/objective"),
+        ({"design": {"objective": "alignment:x@rect(0.99,0.99,1,1)"}}, "design/objective"),
     ],
 )
 def test_bad_values_are_named_before_anything_runs(change, named):

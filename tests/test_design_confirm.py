@@ -187,15 +187,15 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
 
 
 def test_confirmation_figure_is_written(tmp_path):
-    from condor.design.plots import plot_confirmation, plot_search_history
+    from condor.plots import design_confirmation, design_search_history
 
     table = pd.DataFrame({"design": [1, 2, 3, 4], "role": ["top", "random", "random", "random"],
                           "predicted_objective": [0.6, 0.1, 0.3, 0.5],
                           "simulated_objective": [0.7, 0.15, 0.2, 0.55],
                           "simulated_objective_std": [0.01, 0.02, np.nan, 0.01]})
     summary = design_summary(table, pd.DataFrame({"mould_id": [0], "objective": [0.4]}), n_boot=20)
-    plot_confirmation(table, summary, tmp_path / "c.png", title="alignment:x")
+    design_confirmation(table, summary, tmp_path / "c.png", title="alignment:x")
     history = pd.DataFrame({"evaluations": [16, 32], "best_score": [0.1, 0.2],
                             "generation_median": [0.0, 0.1]})
-    plot_search_history(history, tmp_path / "h.png")
+    design_search_history(history, tmp_path / "h.png")
     assert (tmp_path / "c.png").stat().st_size > 1000 and (tmp_path / "h.png").stat().st_size > 1000

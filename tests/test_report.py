@@ -125,7 +125,7 @@ def statistics_table(n=12, bias=0.002, r=0.99):
 
 def fake_inputs(tmp_path):
     d = tmp_path
-    for name in ("gallery", "samples", "chart", "conv", "spread"):
+    for name in ("gallery", "samples", "chart", "conv", "spread", "dconf", "dhist", "dfig"):
         png(d / f"{name}.png", seed=len(name))
     pd.DataFrame({"sample": range(4), "mould": range(4), "split": ["train", "train", "val", "test"],
                   "status": ["ok", "ok", "ok", "folded: 2% inverted"],
@@ -151,6 +151,12 @@ def fake_inputs(tmp_path):
     figures = d / "evaluation" / "unet" / "figures"
     figures.mkdir(parents=True)
     png(figures / "unet_eval_statistics.png", seed=9)
+    pd.DataFrame({"design": [3, 9], "role": ["top", "random"], "predicted_objective": [0.8, 0.3],
+                  "simulated_objective": [0.82, 0.25]}).to_csv(d / "designs.csv", index=False)
+    pd.DataFrame({"n": [15], "spearman": [0.92], "spearman_low": [0.65], "spearman_high": [1.0],
+                  "ceiling_spearman": [0.95], "bias": [-0.01], "best_simulated": [0.83],
+                  "n_baseline": [24], "best_baseline": [0.41], "improvement": [0.42]}).to_csv(
+        d / "dsummary.csv", index=False)
     store = d / "dataset.zarr"
     create_store(store, StoreSpec(2, 8, 0, ("train", "test"), {}))
     for i in range(2):
@@ -166,7 +172,10 @@ def fake_inputs(tmp_path):
               "calibration": d / "calibration.csv", "spread_chart": d / "spread.png",
               "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
               "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
-              "evaluations": [figures], "histories": [d / "unet_history.csv"]}
+              "evaluations": [figures], "histories": [d / "unet_history.csv"],
+              "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
+              "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
+              "design_figure": d / "dfig.png"}
     assert set(inputs) == set(report.REPORT_INPUTS)
     return inputs, store
 
@@ -176,8 +185,9 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     out = report.condor_report(CONFIG, inputs, store, tmp_path / "out" / "report.html")
     page = out.read_text()
     p = parse(page)
-    assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#dataset"]
-    assert len(p.images) == 6  # chart, spread, convergence, evaluation figure, gallery, samples
+    assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#design", "#dataset"]
+    assert len(p.images) == 9  # chart, spread, convergence, evaluation, 3 design, gallery, samples
+    assert "which beats the best of the 24 test moulds" in page and "rho 0.92" in page
     assert "90% interval covers" in page
     assert all(src.startswith("data:image/png;base64,") for src in p.images)
     assert "src=\"http" not in page and "href=\"http" not in page  # self-contained

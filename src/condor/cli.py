@@ -89,7 +89,8 @@ def cmd_mould(args) -> None:
 
 def _user_mould_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--l0-um", type=_positive_float, default=None,
-                        help="cell spacing l0 in micrometres, for a drawing in mm or um")
+                        help="cell spacing l0 in micrometres, for a drawing in mm or um (and "
+                             "drawings written in mm too)")
     parser.add_argument("--units", choices=["l0", "mm", "um"], default=None,
                         help="units of a drawing that does not state its own")
     parser.add_argument("--fit", action="store_true",
@@ -225,6 +226,31 @@ def cmd_predict(args) -> None:
           f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
 
 
+def cmd_design(args) -> None:
+    from condor.design import parse_objective
+    from condor.stages.design import design
+    from condor.surrogate.predict import Predictor
+
+    parse_objective(args.objective)  # a bad objective is named before anything is loaded
+    scene = _checkpoint_scene(Predictor(args.checkpoint, device="cpu"))
+    yours = [load_mould(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+             for path in args.mould or ()]
+    summary = design(scene, args.checkpoint, args.out, args.objective, budget=args.budget,
+                     seed=args.seed, n_top=args.top, n_random=args.random,
+                     replicas=args.replicas, store=args.store, l0_um=args.l0_um,
+                     your_moulds=yours, force=args.force).iloc[0]
+    print(f"{args.out}: designs.csv, summary.csv, design_01..{args.top:02d} .json/.svg/.dxf, "
+          "predictions.zarr, figures/")
+    print(f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
+          f"{summary['spearman']:.2f} [{summary['spearman_low']:.2f}, "
+          f"{summary['spearman_high']:.2f}] over {int(summary['n'])} confirmed designs")
+    if "best_baseline" in summary:
+        print(f"best test mould of {args.store}: {summary['best_baseline']:.4g} "
+              f"(improvement {summary['improvement']:+.4g})")
+    if yours:
+        print(f"your moulds, predicted and simulated: {Path(args.out) / 'your_moulds.csv'}")
+
+
 def _checkpoint_scene(predictor):
     """The scene preset a checkpoint was trained on (its grid: box and pixels)."""
     for scene in PRESETS.values():
@@ -232,8 +258,8 @@ def _checkpoint_scene(predictor):
                 abs(scene.box - predictor.box) < 1e-9 * scene.box:
             return scene
     raise CLIError(f"checkpoint {predictor.path!r} was trained on a {predictor.native} px grid "
-                   f"of box {predictor.box} l0, which is no scene preset: give the mould as a "
-                   "(2, H, W) .npy or .png instead")
+                   f"of box {predictor.box} l0, which is no scene preset (condor.scenes): moulds "
+                   "cannot be placed in it (predict takes a (2, H, W) .npy or .png instead)")
 
 
 def _refuse_dataset(path: Path) -> None:
@@ -335,6 +361,28 @@ def build_parser() -> argparse.ArgumentParser:
     _device_arg(p)
     _force_arg(p)
     p.set_defaults(func=cmd_predict)
+
+    p = sub.add_parser("design", help="search moulds for an objective with a surrogate, confirm "
+                       "by simulation, write drawings")
+    p.add_argument("--objective", required=True,
+                   help="what to maximise, e.g. alignment:x, uniformity, -max_tension, "
+                        "alignment:45deg@disc(0.5,0.5,0.2)+0.5*uniformity; docs/design.md")
+    p.add_argument("--checkpoint", required=True, help="surrogate checkpoint (its scene is used)")
+    p.add_argument("--out", required=True, help="folder for designs.csv, drawings, predictions")
+    p.add_argument("--budget", type=_positive_int, default=2000, help="designs the surrogate scores")
+    p.add_argument("--top", type=_positive_int, default=5, help="best designs confirmed and drawn")
+    p.add_argument("--random", type=_non_negative_int, default=10,
+                   help="random searched designs also confirmed (rank correlation)")
+    p.add_argument("--replicas", type=_positive_int, default=2, help="simulations per design")
+    p.add_argument("--seed", type=_non_negative_int, default=0, help="search seed")
+    p.add_argument("--store", default=None,
+                   help="dataset store whose test moulds are the baseline to beat")
+    p.add_argument("--mould", action="append", default=None,
+                   help="your own mould (JSON, SVG or DXF; repeat for several): scored, "
+                        "predicted and simulated, as the design to beat")
+    _user_mould_args(p)
+    _force_arg(p)
+    p.set_defaults(func=cmd_design)
     return parser
 
 

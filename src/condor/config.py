@@ -80,6 +80,7 @@ class Config:
     simulation: Mapping
     surrogate: Mapping
     report: Mapping
+    design: Mapping
     raw: Mapping  # the validated dict, defaults filled (what a checkpoint or report records)
 
     # --- building ------------------------------------------------------------------------
@@ -106,6 +107,7 @@ class Config:
                    moulds=_frozen(filled["moulds"]), split=_frozen(filled["split"]),
                    simulation=_frozen(filled["simulation"]),
                    surrogate=_frozen(filled["surrogate"]), report=_frozen(filled["report"]),
+                   design=_frozen(filled["design"]),
                    raw=_frozen(filled))
         made._check_consistency(check_surrogate)
         return made
@@ -208,7 +210,7 @@ class Config:
             raise ConfigError(f"config key scene_overrides: {scene.pixels} px is too coarse")
 
     def _check_surrogate(self) -> None:
-        # Imported here: torch costs seconds to import, and only a surrogate section needs it.
+        # Imported here: torch (and cma) cost seconds to import; a workflow job skips this.
         from condor.surrogate.variants import train_config, workflow_variants
 
         try:
@@ -223,6 +225,13 @@ class Config:
         device = self.surrogate["device"]
         if device is not None and variants:
             check_device(device, "config key surrogate/device")
+        from condor.design.objectives import ObjectiveError, parse_objective
+
+        try:
+            parse_objective(self.design["objective"], pixels=self.scene.pixels,
+                            max_extent=self.scene.max_extent)
+        except ObjectiveError as err:
+            raise ConfigError(f"config key design/objective: {err}") from err
 
 
 def check_device(device: str, what: str) -> None:

@@ -173,6 +173,11 @@ REPORT_INPUTS = {
     "surrogate_summary": "the paper's measures per variant and baseline (CSV)",
     "evaluations": "evaluation folders, one per variant and one for the baselines",
     "histories": "training history per variant (CSV)",
+    "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
+    "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
+    "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
+    "design_history": "the design search's progress (PNG)",
+    "design_figure": "the best designs: moulds, predicted fields and spread (PNG)",
 }
 # Statistics as the report names them.
 STATISTIC_LABELS = {"mean_P": "mean P", "n_P_gt_0.2": "N(P > 0.2)", "mean_T": "mean T",
@@ -434,6 +439,52 @@ def _evaluation_caption(name: str, stem: str) -> str:
     return f"{name} ({stem}): {what}."
 
 
+def design_verdict(summary: pd.DataFrame, objective: str) -> str:
+    """The design run in plain words: does the search pay, does the surrogate rank designs."""
+    row = summary.iloc[0]
+    words = [f"Designing for {objective}: the best confirmed design simulates at "
+             f"{row['best_simulated']:.3g} (replica mean)"]
+    if "best_baseline" in row and np.isfinite(row.get("best_baseline", np.nan)):
+        better = "beats" if row["improvement"] > 0 else "does not beat"
+        words[0] += (f", which {better} the best of the {int(row['n_baseline'])} test moulds of "
+                     f"the random dataset ({row['best_baseline']:.3g}; improvement "
+                     f"{row['improvement']:+.3g})")
+    words[0] += "."
+    words.append(f"Over the {int(row['n'])} confirmed designs the surrogate's ranking has "
+                 f"Spearman rho {row['spearman']:.2f} [{row['spearman_low']:.2f}, "
+                 f"{row['spearman_high']:.2f}] against the simulations (the replicas' own "
+                 f"ceiling: {row['ceiling_spearman']:.2f}); bias {row['bias']:+.3g}.")
+    return " ".join(words)
+
+
+def _design_section(config, inp) -> Section:
+    designs = _csv(inp, "design_table")
+    summary = _csv(inp, "design_summary")
+    objective = config.design["objective"]
+    columns = [c for c in ("design", "role", "predicted_objective", "predicted_spread",
+                           "simulated_objective", "simulated_objective_std", "n_ok")
+               if c in designs.columns]
+    return Section("design", f"Design: {objective}", [
+        paragraph(f"The surrogate scored {config.design['budget']} candidate moulds of a "
+                  "parametric family (symmetric outlines with tethers, the dataset's area rule "
+                  "and fabrication limits) in a CMA-ES search; the best "
+                  f"{config.design['top']} and {config.design['random']} random searched "
+                  f"designs were simulated {config.design['replicas']} times each. Drawings "
+                  "(JSON for condor simulate, SVG and DXF with dimensions) are in results/design."),
+        verdict(design_verdict(summary, objective)),
+        side_by_side(figure(inp["design_confirmation"], "Predicted against simulated objective "
+                            "of the confirmed designs (bars: replica spread); line: the best "
+                            "test mould."),
+                     figure(inp["design_history"], "The search: best and median predicted "
+                            "score against designs evaluated.")),
+        figure(inp["design_figure"], "The best designs: mould, predicted fields and the "
+                                     "predicted spread of one simulation."),
+        folded("Every ranked and confirmed design", [
+            table(designs[columns], "Designs best predicted first; simulated columns where "
+                  "confirmed.")]),
+    ])
+
+
 def store_statistics(store) -> pd.DataFrame:
     """Median, min, max and total of cells, solver CPU seconds and energy per cell over the ok
     samples of a dataset store."""
@@ -472,7 +523,7 @@ def condor_report(config, inputs, store, out_html) -> Path:
         raise ReportError(f"report inputs lack {missing}")
     sections = [_summary_section(config, inputs), _accuracy_section(inputs),
                 _simulator_section(inputs), _surrogate_section(config, inputs),
-                _dataset_section(inputs, store)]
+                _design_section(config, inputs), _dataset_section(inputs, store)]
     stamp = datetime.datetime.now().isoformat(timespec="seconds")
     meta = (f"condor {__version__}; scene {config.scene.name}; {config.n_moulds} moulds; "
             f"results {config.results}; written {stamp}")

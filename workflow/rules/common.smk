@@ -64,6 +64,11 @@ def report_inputs(wildcards):
         "evaluations": [*expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
                         f"{EVALUATION}/baselines/figures"],
         "histories": expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
+        "design_table": rules.design.output.table,
+        "design_summary": rules.design.output.summary,
+        "design_confirmation": rules.design.output.confirmation,
+        "design_history": rules.design.output.history,
+        "design_figure": rules.design.output.designs,
     }
 
 

@@ -363,10 +363,11 @@ class DesignPrediction:
 
 def predict_designs(objective: Objective, moulds: list[Mould], predictor,
                     sigma_px: float | None = None, draws: int = 64,
-                    seed: int = 0) -> DesignPrediction:
+                    seed: int = 0, n_cells=None) -> DesignPrediction:
     """Predict the fields and objective of `moulds` (rasterised at the predictor's native
     size). sigma_px: the fields' kernel width in pixels, for objective_spread (default: the
-    scene kernel condor.scenes.SIGMA_L0 at the moulds' box)."""
+    scene kernel condor.scenes.SIGMA_L0 at the moulds' box). n_cells: each mould's cell count
+    (its lattice count), for a predictor that takes one."""
     moulds = list(moulds)
     if not moulds:
         raise ValueError("no moulds to predict")
@@ -374,7 +375,10 @@ def predict_designs(objective: Objective, moulds: list[Mould], predictor,
     if pixels is None:
         raise DesignSearchError(f"predictor {predictor!r} has no native grid size (`native`)")
     inputs = np.stack([input_channels(m, int(pixels)) for m in moulds])
-    prediction = predictor(inputs)
+    if n_cells is None:
+        prediction = predictor(inputs)
+    else:  # a surrogate that conserves cells predicts with each mould's exact count
+        prediction = predictor(inputs, n_cells=np.asarray(n_cells, dtype=np.float64))
     normalised = np.asarray(prediction.normalised, dtype=np.float64)
     table = objective.evaluate(normalised)
     table.insert(0, "mould_id", [m.mould_id for m in moulds])

@@ -1,0 +1,145 @@
+"""The design stage: search moulds with the surrogate, confirm the best and a random sample by
+simulation with replicas, and hand over drawings (condor.design, docs/design.md).
+
+`design(...)` writes into `out_dir`:
+- designs.csv: the ranked designs with predicted and (where confirmed) simulated objectives;
+- summary.csv: Spearman rho and bias between predicted and simulated objective (intervals),
+  the best confirmed design against the best mould of the dataset's test split;
+- search_history.csv;
+- design_NN.json (the mould, as `condor simulate` reads it), design_NN.svg and design_NN.dxf
+  (drawings with dimensions in l0 and, given `l0_um`, in mm), for the best `n_top` designs;
+- predictions.zarr: their predicted fields (raw, normalised) and reproducibility maps;
+- your_moulds.csv: a user's own moulds, predicted and simulated the same way, when given;
+- figures/: predicted against simulated objective, the search's progress, the designs.
+"""
+
+from __future__ import annotations
+
+import logging
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import xarray as xr
+
+from condor import plots
+from condor.design import (confirm, dataset_baseline, default_space, design_table,
+                           parse_objective, predict_designs, search, simulate_designs)
+from condor.drawings import write_dxf, write_svg
+from condor.fields import FIELD_NAMES
+from condor.lattice import build_lattice
+from condor.moulds import save_json
+from condor.scenes import Scene
+from condor.store import CHANNELS, open_store, quiet_zarr
+from condor.surrogate.predict import Predictor
+
+log = logging.getLogger("condor")
+YOUR_MOULD_IDS = 10**6  # mould ids (hence replica seeds) of a user's moulds: none of the search's
+
+
+class DesignOutputError(ValueError):
+    """The design's output folder cannot be written as asked."""
+
+
+def _out_dir(out_dir, force: bool) -> Path:
+    out_dir = Path(out_dir)
+    if out_dir.exists() and any(out_dir.iterdir()):
+        if not force:
+            raise DesignOutputError(f"--out {str(out_dir)!r} holds files; pass --force to "
+                                    "replace them")
+        shutil.rmtree(out_dir)
+    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
+    return out_dir
+
+
+def design(scene: Scene, checkpoint, out_dir, objective: str, budget: int = 2000,
+           seed: int = 0, n_top: int = 5, n_random: int = 10, replicas: int = 2,
+           store=None, l0_um: float | None = None, solver: str | None = None,
+           your_moulds=(), force: bool = False, progress: bool | None = None) -> pd.DataFrame:
+    """Search, confirm and hand over (module docstring); returns the summary row. Every
+    error a user can cause (objective, scene, budget, a bad mould file) is raised before the
+    search runs. `your_moulds`: condor.moulds.Mould objects (a user's own designs) scored the
+    same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
+    predictor = Predictor(checkpoint, device="cpu")
+    if predictor.native != scene.pixels or predictor.box is None or \
+            abs(predictor.box - scene.box) > 1e-9 * scene.box:
+        raise DesignOutputError(f"checkpoint {str(checkpoint)!r} was trained on {predictor.native} "
+                                f"px of box {predictor.box} l0, not the {scene.name!r} scene")
+    parsed = parse_objective(objective, pixels=scene.pixels, max_extent=scene.max_extent)
+    space = default_space(scene, parsed)
+    out = _out_dir(out_dir, force)
+    if your_moulds:
+        _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas, seed, solver,
+                           progress).to_csv(out / "your_moulds.csv", index=False)
+    result = search(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
+    log.info("search: %d designs, %.0f per CPU-minute; best predicted %s = %.4g",
+             result.evaluations, result.designs_per_cpu_minute, objective,
+             result.ranked().iloc[0]["objective"])
+    baseline = dataset_baseline(parsed, open_store(store), split="test") if store else None
+    confirmation = confirm(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
+                           baseline=baseline, solver=solver, progress=progress)
+    table = design_table(result, confirmation, n=max(n_top, 10))
+    table.to_csv(out / "designs.csv", index=False)
+    confirmation.summary.to_csv(out / "summary.csv", index=False)
+    result.history.to_csv(out / "search_history.csv", index=False)
+    best = [int(d) for d in table["design"].head(n_top)]
+    moulds = result.moulds(best)
+    for k, mould in enumerate(moulds, 1):
+        save_json(mould, out / f"design_{k:02d}.json")
+        write_svg(mould, out / f"design_{k:02d}.svg", l0_um=l0_um)
+        write_dxf(mould, out / f"design_{k:02d}.dxf", l0_um=l0_um)
+    cells = [build_lattice(m.polygon, m.tethers, scene.depth).n_cells for m in moulds]
+    predicted = predict_designs(parsed, moulds, predictor, n_cells=cells)
+    _write_predictions(out / "predictions.zarr", predicted, scene, best)
+    _figures(out / "figures", table, confirmation, result, predicted, objective)
+    log.info("\n%s", confirmation.summary.to_string(index=False))
+    return confirmation.summary
+
+
+def _score_your_moulds(parsed, moulds, scene, predictor, replicas, seed, solver, progress):
+    """A user's moulds under the objective: predicted and simulated (replica mean)."""
+    moulds = [replace(m, mould_id=YOUR_MOULD_IDS + k) for k, m in enumerate(moulds)]
+    cells = [build_lattice(m.polygon, m.tethers, scene.depth).n_cells for m in moulds]
+    predicted = predict_designs(parsed, moulds, predictor, n_cells=cells).table
+    simulated = simulate_designs(parsed, moulds, scene, replicas, seed, solver=solver,
+                                 progress=progress).table
+    return pd.DataFrame({"mould": [k + 1 for k in range(len(moulds))],
+                         "predicted_objective": predicted["objective"].to_numpy(),
+                         "predicted_spread": predicted["predicted_spread"].to_numpy(),
+                         "simulated_objective": simulated["objective"].to_numpy(),
+                         "simulated_objective_std": simulated["objective_std"].to_numpy(),
+                         "n_ok": simulated["n_ok"].to_numpy()})
+
+
+def _write_predictions(path: Path, predicted, scene: Scene, designs) -> None:
+    centres = (np.arange(scene.pixels) + 0.5) * scene.pixel_size
+    variables = {"inputs": (("design", "channel", "y", "x"), predicted.inputs.astype(np.uint8)),
+                 "raw": (("design", "field", "y", "x"), predicted.raw.astype(np.float32)),
+                 "normalised": (("design", "field", "y", "x"), predicted.normalised.astype(np.float32))}
+    if predicted.spread is not None:
+        variables["spread"] = (("design", "field", "y", "x"), predicted.spread.astype(np.float32))
+    ds = xr.Dataset(variables, coords={"design": list(designs), "field": list(FIELD_NAMES),
+                                       "channel": list(CHANNELS), "y": centres, "x": centres},
+                    attrs={"length_unit": "l0", "scene": scene.name,
+                           "spread": "standard deviation of one simulation about the predicted "
+                                     "(expected) raw field"})
+    with quiet_zarr():
+        ds.to_zarr(path, mode="w-")
+
+
+def _figures(folder: Path, table, confirmation, result, predicted, objective: str) -> None:
+    plots.design_confirmation(confirmation.table, confirmation.summary,
+                              folder / "confirmation.png", title=objective)
+    plots.design_search_history(result.history, folder / "search_history.png")
+    rows = []
+    for k in range(len(predicted.inputs)):
+        images = [("mould", predicted.inputs[k][0] + 2 * predicted.inputs[k][1]),
+                  ("P", predicted.raw[k][0]), ("T", predicted.raw[k][1]),
+                  ("Sx2", predicted.raw[k][2]), ("Sy2", predicted.raw[k][3])]
+        if predicted.spread is not None:
+            images += [("Sx2 spread", predicted.spread[k][2])]
+        rows.append((f"design {k + 1}", images))
+    plots.image_grid(rows, folder / "designs.png", f"the best designs for {objective}: "
+                     "predicted fields and reproducibility", cmaps={"mould": "Greys"})
