@@ -5,13 +5,16 @@ import pandas as pd
 import pytest
 import torch
 
+from condor import plots
+from condor.metrics import normalise_predicted
+
 from condor.surrogate.baselines import MaskedMeanBaseline, MouldBlurBaseline, gaussian_blur
 from condor.surrogate.checkpoint import save_checkpoint
 from condor.surrogate.data import FIELD_NAMES, FieldScaling
 from condor.surrogate.evaluate import (best_worst, correlation_table, evaluate, mae_frame,
                                        pearson_r, statistics_frame)
 from condor.surrogate.models import UNetConfig, paper_generator
-from condor.surrogate.predict import normalise, predict
+from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
 
@@ -68,8 +71,10 @@ def test_statistics_and_correlations_against_corrcoef():
 def test_normalise_uses_predicted_density_sum():
     rng = np.random.default_rng(3)
     raw = rng.random((3, 8, 5, 5)).astype(np.float32)
-    normalised, n_cells = normalise(raw)
-    np.testing.assert_allclose(n_cells, raw[:, 0].sum(axis=(1, 2)), rtol=1e-6)
+    normalised = normalise_predicted(raw)
+    n_cells = raw[:, 0].sum(axis=(1, 2), dtype=np.float64)
+    raw[2, 0] = 0.0  # no predicted density: undefined normalisation
+    assert np.isnan(normalise_predicted(raw)[2]).all() and np.isfinite(normalise_predicted(raw)[:2]).all()
     np.testing.assert_allclose(normalised[:, 0].sum(axis=(1, 2)), 25, rtol=1e-5)  # = N_p
     np.testing.assert_allclose(normalised[1, 3], raw[1, 3] * 25 / n_cells[1], rtol=1e-5)
 
@@ -132,8 +137,11 @@ def test_evaluate_end_to_end(tmp_path):
     assert len(ev.mae) == 2 and set(ev.correlations.index) == {"mean_P", "mean_T_norm"}
     assert summary.loc["mould_blur", "mae_mean"] == pytest.approx(ev.mae["mean"].mean())
     written = {p.name for p in (tmp_path / "eval").iterdir()}
-    assert {"summary.csv", "unet_l1_eval_mae.csv", "mould_blur_T_worst.png",
-            "masked_mean_statistics.png"} <= written
+    assert {"summary.csv", "unet_l1_eval_mae.csv", "mould_blur_correlations.csv"} <= written
+    assert not any(name.endswith(".png") for name in written)  # computing draws nothing
+    paths = plots.evaluation_figures(ev, result["truth"], result["predictions"]["mould_blur"],
+                                     tmp_path / "figures")
+    assert {p.name for p in paths} >= {"mould_blur_T_worst.png", "mould_blur_statistics.png"}
     assert pd.read_csv(tmp_path / "eval" / "summary.csv").shape[0] == 4
     with pytest.raises(ValueError, match="'val'"):
         evaluate(tmp_path / "m.pt", ds.assign(status=ds["status"].where(ds["split"] != "val", "x")),

@@ -8,6 +8,7 @@ import torch
 import xarray as xr
 from shapely.geometry import Polygon, box
 
+from condor import cli, plots
 from condor.lattice import build_lattice
 from condor.moulds import generate_mould, save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
@@ -150,14 +151,17 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
     written = xr.open_zarr(tmp_path / "p.zarr")
     assert written["spread"].dims == ("field", "y", "x")
     assert float(written["raw"].sel(field="P").sum()) == pytest.approx(123, rel=1e-5)
-    write_prediction(tmp_path / "p.png", single, inputs[0])
+    plots.prediction_panels(inputs[0], single, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
-    # a mould JSON: N_c is its exact lattice count at the training depth
+    # a mould JSON through `condor predict`: N_c is its exact lattice count at the scene's depth
     mould = generate_mould(3, 1, box=predictor.box)
     save_json(mould, tmp_path / "m.json")
-    _, from_file = predictor.predict_file(tmp_path / "m.json")
+    cli.main(["predict", str(tmp_path / "m.json"), "--checkpoint", str(path), "--out",
+              str(tmp_path / "m.zarr")])
+    from_file = xr.open_zarr(tmp_path / "m.zarr")
     exact = build_lattice(mould.polygon, mould.tethers, 2.0).n_cells
-    assert from_file.raw[I["P"]].sum() == pytest.approx(exact, rel=1e-5)
+    assert float(from_file["raw"].sel(field="P").sum()) == pytest.approx(exact, rel=1e-5)
+    assert "spread" in from_file
 
 
 def test_old_tanh_checkpoints_still_predict_without_spread(physics_ds, tmp_path):

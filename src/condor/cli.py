@@ -13,7 +13,7 @@ import numpy as np
 from condor import plots
 from condor.drawings import load_mould, training_domain_check
 from condor.moulds import MouldParams, input_channels, save_json
-from condor.scenes import PRESETS, get_scene
+from condor.scenes import PRESETS, Scene, get_scene
 from condor.simulate import SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
 from condor.store import FORMAT, check_metadata, check_store
@@ -213,15 +213,19 @@ def cmd_predict(args) -> None:
         for warning in training_domain_check(mould, scene):
             print(f"condor predict: warning: {warning}", file=sys.stderr)
         inputs = input_channels(mould, predictor.native)
-        n_cells = n_cells_of_mould(mould.polygon, mould.tethers, scene.depth)  # exact
+        n_cells = None if np.isnan(scene.depth) else \
+            n_cells_of_mould(mould.polygon, mould.tethers, scene.depth)  # exact
     else:
         inputs, n_cells = read_mould_inputs(args.mould, predictor.native, predictor.box), None
     if not inputs.any():
         raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
     prediction = predictor(inputs, n_cells=n_cells)  # None: estimated from the pixels
-    write_prediction(out, prediction, inputs, predictor.pixel_size,
-                     {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
-                      "mode": predictor.mode}, overwrite=args.force)
+    if out.suffix.lower() == ".png":
+        plots.prediction_panels(inputs, prediction, out)
+    else:
+        write_prediction(out, prediction, inputs, predictor.pixel_size,
+                         {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
+                          "mode": predictor.mode}, overwrite=args.force)
     print(f"{out}: 8 fields at {predictor.native} px, predicted N_c = "
           f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
 
@@ -233,6 +237,9 @@ def cmd_design(args) -> None:
 
     parse_objective(args.objective)  # a bad objective is named before anything is loaded
     scene = _checkpoint_scene(Predictor(args.checkpoint, device="cpu"))
+    if np.isnan(scene.depth):
+        raise CLIError(f"checkpoint {args.checkpoint!r} records no mould depth: its designs "
+                       "cannot be simulated")
     yours = [load_mould(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
              for path in args.mould or ()]
     summary = design(scene, args.checkpoint, args.out, args.objective, budget=args.budget,
@@ -252,14 +259,17 @@ def cmd_design(args) -> None:
 
 
 def _checkpoint_scene(predictor):
-    """The scene preset a checkpoint was trained on (its grid: box and pixels)."""
+    """The scene a checkpoint was trained on: the preset with its grid (box and pixels), else
+    a scene of its recorded grid and depth (depth NaN when the checkpoint lacks it)."""
     for scene in PRESETS.values():
         if scene.pixels == predictor.native and predictor.box is not None and \
                 abs(scene.box - predictor.box) < 1e-9 * scene.box:
             return scene
-    raise CLIError(f"checkpoint {predictor.path!r} was trained on a {predictor.native} px grid "
-                   f"of box {predictor.box} l0, which is no scene preset (condor.scenes): moulds "
-                   "cannot be placed in it (predict takes a (2, H, W) .npy or .png instead)")
+    if predictor.box is None:
+        raise CLIError(f"checkpoint {predictor.path!r} records no pixel size: moulds cannot be "
+                       "placed on its grid (predict takes a (2, H, W) .npy or .png instead)")
+    depth = predictor.depth if predictor.depth is not None else float("nan")
+    return Scene("checkpoint", box=predictor.box, depth=depth, pixels=predictor.native)
 
 
 def _refuse_dataset(path: Path) -> None:

@@ -16,6 +16,8 @@ from condor.fields import FIELD_NAMES, STATISTICS, mould_statistics, normalise
 # The paper's Pearson r (Results): 0.881 for mean density, "above 0.98" for the others.
 PAPER_R_MEAN_DENSITY = 0.881
 PAPER_R_OTHERS_ABOVE = 0.98
+# The fields whose best and worst test moulds the paper shows: what matters most for design.
+BEST_WORST_FIELDS = ("Sx2", "T")
 
 
 def paper_r(statistic: str) -> tuple[float, str]:
@@ -54,17 +56,28 @@ def mae_frame(pred: np.ndarray, true: np.ndarray, sample_ids, field_names=FIELD_
     return frame
 
 
-def statistics_frame(fields: np.ndarray, pixel_size: float, sample_ids=None, n_cells=None) -> pd.DataFrame:
-    """condor.fields.mould_statistics per sample (rows). n_cells None: each sample's own
-    density sum (as for predictions). A sample it rejects (P summing to <= 0) gets NaN."""
+def best_worst(mae: pd.DataFrame, field: str, n: int = 6) -> tuple[list, list]:
+    """Sample ids of the n lowest and n highest MAE for `field` (best first, worst first)."""
+    ordered = mae[field].sort_values(kind="stable")
+    return list(ordered.index[:n]), list(ordered.index[::-1][:n])
+
+
+def statistics_frame(fields: np.ndarray, pixel_size: float, sample_ids=None, n_cells=None,
+                     statistics_fn=None) -> pd.DataFrame:
+    """`statistics_fn` (default condor.fields.mould_statistics) per sample (rows). n_cells None:
+    each sample's own density sum (as for predictions). A sample it rejects (P summing to
+    <= 0) gets NaN."""
+    paper = statistics_fn is None
+    statistics_fn = mould_statistics if paper else statistics_fn
     rows = []
     for s, f in enumerate(fields):
         try:
-            rows.append(mould_statistics(f, pixel_size, None if n_cells is None else float(n_cells[s])))
+            rows.append(statistics_fn(f, pixel_size, None if n_cells is None else float(n_cells[s])))
         except ValueError:
             rows.append({})
     index = pd.Index(list(range(len(fields)) if sample_ids is None else sample_ids), name="sample")
-    return pd.DataFrame(rows, index=index, columns=list(STATISTICS))
+    columns = list(STATISTICS) if paper else None
+    return pd.DataFrame(rows, index=index, columns=columns)
 
 
 def correlation_table(sim: pd.DataFrame, pred: pd.DataFrame) -> pd.DataFrame:

@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from condor.fields import FIELD_NAMES
+from condor.metrics import BEST_WORST_FIELDS, best_worst
 
 _PLT = None
 
@@ -254,3 +255,93 @@ def design_search_history(history, path) -> Path:
     ax.legend(fontsize=7)
     fig.tight_layout()
     return save(fig, path)
+
+
+# --- surrogate evaluation ------------------------------------------------------------------------
+
+def plot_mae_distribution(mae, path, title: str = ""):
+    """Histogram of per-sample MAE, one panel per field."""
+    plt = pyplot()
+    fields = [c for c in mae.columns if c != "mean"]
+    fig, axes = plt.subplots(2, (len(fields) + 1) // 2, figsize=(12, 5))
+    for ax, name in zip(axes.flat, fields):
+        ax.hist(mae[name], bins=min(20, max(5, len(mae) // 3)), color="tab:blue")
+        ax.set_title(f"{name}: median {mae[name].median():.3g}", fontsize=9)
+        ax.set_xlabel("MAE")
+    fig.suptitle(title or "per-sample MAE (test split)")
+    fig.tight_layout()
+    save(fig, path, dpi=100)
+
+
+def plot_best_worst(mae, true: np.ndarray, pred: np.ndarray, field: str, path,
+                    which: str = "best", n: int = 6):
+    """Rows: the n best (or worst) samples by MAE of `field`; columns: simulation,
+    prediction, difference (prediction - simulation). true/pred rows follow mae's index."""
+    plt = pyplot()
+    best, worst = best_worst(mae, field, n)
+    ids = best if which == "best" else worst
+    k = FIELD_NAMES.index(field)
+    position = {sid: i for i, sid in enumerate(mae.index)}
+    fig, axes = plt.subplots(len(ids), 3, figsize=(7.5, 2.3 * len(ids)), squeeze=False)
+    for row, sid in zip(axes, ids):
+        sim, prd = true[position[sid], k], pred[position[sid], k]
+        lo, hi = min(sim.min(), prd.min()), max(sim.max(), prd.max())
+        diff = prd - sim
+        span = np.abs(diff).max() or 1.0
+        for ax, image, label, kw in ((row[0], sim, "simulation", {"vmin": lo, "vmax": hi}),
+                                     (row[1], prd, "prediction", {"vmin": lo, "vmax": hi}),
+                                     (row[2], diff, "difference", {"vmin": -span, "vmax": span,
+                                                                   "cmap": "RdBu_r"})):
+            im = ax.imshow(image, origin="lower", **kw)
+            ax.set_xticks([]), ax.set_yticks([])
+            ax.set_title(f"{sid}: {label}" + (f" (MAE {mae.loc[sid, field]:.3g})"
+                                               if label == "difference" else ""), fontsize=8)
+            fig.colorbar(im, ax=ax, fraction=0.046)
+    fig.suptitle(f"{field}: {n} {which} test samples by MAE")
+    fig.tight_layout()
+    save(fig, path, dpi=90)
+
+
+def plot_statistics_scatter(ev, path):
+    """Simulated vs predicted whole-mould statistics, with r and a dashed y = x."""
+    plt = pyplot()
+    names = list(ev.sim_statistics.columns)
+    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(3 * ((len(names) + 1) // 2), 6))
+    for ax, name in zip(axes.flat, names):
+        x, y = ev.sim_statistics[name], ev.pred_statistics[name]
+        ax.scatter(x, y, s=10)
+        lo, hi = np.nanmin([x.min(), y.min()]), np.nanmax([x.max(), y.max()])
+        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
+        ax.set_title(f"{name}: r = {ev.correlations.loc[name, 'r']:.3f}", fontsize=9)
+        ax.set_xlabel("simulation", fontsize=8)
+        ax.set_ylabel("prediction", fontsize=8)
+    fig.suptitle(f"whole-mould statistics, {ev.method}")
+    fig.tight_layout()
+    save(fig, path, dpi=100)
+
+
+def evaluation_figures(ev, true: np.ndarray, pred: np.ndarray, out_dir) -> list[Path]:
+    """The paper's evaluation figures of one method (a condor.surrogate.evaluate.Evaluation):
+    MAE distribution, statistics scatter, and the best / worst moulds for Sx2 and T."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"{ev.method}_mae_distribution.png", out / f"{ev.method}_statistics.png"]
+    plot_mae_distribution(ev.mae, paths[0], f"per-sample MAE, {ev.method}")
+    plot_statistics_scatter(ev, paths[1])
+    for field in BEST_WORST_FIELDS:
+        for which in ("best", "worst"):
+            paths.append(out / f"{ev.method}_{field}_{which}.png")
+            plot_best_worst(ev.mae, true, pred, field, paths[-1], which)
+    return paths
+
+
+def prediction_panels(inputs, prediction, path, title: str = "") -> Path:
+    """A prediction (condor.surrogate.predict.Prediction) of one mould: the inputs, each field
+    raw, normalised and (when predicted) its spread."""
+    rows = [("", [("mould", inputs[0]), ("tether", inputs[1])]),
+            ("raw", list(zip(FIELD_NAMES, prediction.raw))),
+            ("normalised", list(zip(FIELD_NAMES, prediction.normalised)))]
+    if prediction.spread is not None:
+        rows.append(("spread", list(zip(FIELD_NAMES, prediction.spread))))
+    return image_grid(rows, path, title or f"predicted fields, N_c = "
+                                           f"{float(prediction.n_cells):.1f}", dpi=90)

@@ -16,6 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from condor.config import check_device
+from condor.plots import evaluation_figures
 from condor.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.evaluate import combine_summaries
@@ -103,15 +104,23 @@ def evaluate(store, checkpoint, out_dir, name: str | None = None, modes=None, de
     ds = open_store(store)
     check_same_grid(load_checkpoint(checkpoint), ds, checkpoint, store)
     out_dir = Path(out_dir)
-    return evaluate_checkpoint(checkpoint, ds, out_dir=out_dir, split=split,
-                               modes=modes, baselines=baselines, device=device, name=name,
-                               figure_dir=out_dir / "figures")
+    result = evaluate_checkpoint(checkpoint, ds, out_dir=out_dir, split=split, modes=modes,
+                                 baselines=baselines, device=device, name=name)
+    _draw(result, out_dir / "figures")
+    return result
 
 
 def evaluate_baselines(store, out_dir) -> dict:
     """The baselines alone, with the same tables and figures as `evaluate`."""
     out_dir = Path(out_dir)
-    return evaluate_baseline_methods(open_store(store), out_dir=out_dir, figure_dir=out_dir / "figures")
+    result = evaluate_baseline_methods(open_store(store), out_dir=out_dir)
+    _draw(result, out_dir / "figures")
+    return result
+
+
+def _draw(result: dict, folder: Path) -> None:
+    for method, ev in result["evaluations"].items():
+        evaluation_figures(ev, result["truth"], result["predictions"][method], folder)
 
 
 def summarise(summary_csvs, out_csv) -> pd.DataFrame:

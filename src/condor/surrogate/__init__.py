@@ -10,8 +10,7 @@ from .evaluate import (combine_summaries, evaluate, evaluate_baselines, evaluate
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator,
                      count_parameters_like_paper, paper_discriminator, paper_generator,
                      set_prediction_mode)
-from .predict import (Prediction, Predictor, plot_prediction, predict, read_mould_inputs,
-                      write_prediction)
+from .predict import Prediction, Predictor, predict, read_mould_inputs, write_prediction
 from .train import MODEL_KINDS, TrainConfig, train
 from .variants import train_config, workflow_variants
 
@@ -21,7 +20,7 @@ __all__ = [
     "resample_fields", "resample_masks", "usable_samples", "evaluate", "evaluate_predictions",
     "pearson_r", "PREDICTION_MODES", "PatchConfig", "PatchDiscriminator", "UNetConfig",
     "UNetGenerator", "count_parameters_like_paper", "paper_discriminator", "paper_generator",
-    "set_prediction_mode", "Prediction", "Predictor", "plot_prediction", "predict",
+    "set_prediction_mode", "Prediction", "Predictor", "predict",
     "MODEL_KINDS", "TrainConfig", "train", "combine_summaries", "evaluate_baselines",
     "read_mould_inputs", "write_prediction", "train_config", "workflow_variants",
 ]

@@ -12,77 +12,14 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from .baselines import MaskedMeanBaseline, MouldBlurBaseline
+from condor.estimators import pearson_r  # noqa: F401  (re-exported: the paper's r)
+from condor.metrics import (best_worst, correlation_table, mae_frame,  # noqa: F401
+                            paper_r, statistics_frame)
+
+from .baselines import fit_baselines
 from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, usable_samples
 from .predict import Predictor
 
-# The paper's Pearson r (Results): 0.881 for mean density, "above 0.98" for the others.
-PAPER_R_MEAN_DENSITY = 0.881
-PAPER_R_OTHERS_ABOVE = 0.98
-BEST_WORST_FIELDS = ("Sx2", "T")
-
-
-def pearson_r(x, y) -> float:
-    """The paper's r_xy (computational form, in float64); NaN when either side is constant."""
-    x = np.asarray(x, dtype=np.float64)
-    y = np.asarray(y, dtype=np.float64)
-    n = x.size
-    num = n * (x * y).sum() - x.sum() * y.sum()
-    den = np.sqrt(n * (x * x).sum() - x.sum() ** 2) * np.sqrt(n * (y * y).sum() - y.sum() ** 2)
-    return float(num / den) if den > 0 else float("nan")
-
-
-def mae_frame(pred: np.ndarray, true: np.ndarray, sample_ids, field_names=FIELD_NAMES) -> pd.DataFrame:
-    """MAE = mean over pixels |Z_C - Z_ML| per sample (rows) and field (columns), plus "mean"
-    over fields. pred, true: (S, 8, H, W) physical units."""
-    if pred.shape != true.shape:
-        raise ValueError(f"prediction shape {pred.shape} != truth shape {true.shape}")
-    mae = np.abs(pred.astype(np.float64) - true).mean(axis=(2, 3))
-    frame = pd.DataFrame(mae, columns=list(field_names), index=pd.Index(list(sample_ids), name="sample"))
-    frame["mean"] = frame[list(field_names)].mean(axis=1)
-    return frame
-
-
-def statistics_frame(fields: np.ndarray, pixel_size: float, sample_ids=None, n_cells=None,
-                     statistics_fn=None) -> pd.DataFrame:
-    """Whole-mould statistics per sample (rows) via `statistics_fn` (default
-    condor.fields.mould_statistics). A sample the function rejects (e.g. a predicted density
-    that sums to <= 0) gets NaN."""
-    if statistics_fn is None:
-        from condor.fields import mould_statistics as statistics_fn
-    rows = []
-    for s, f in enumerate(fields):
-        try:
-            rows.append(statistics_fn(f, pixel_size, None if n_cells is None else float(n_cells[s])))
-        except ValueError:
-            rows.append({})
-    index = pd.Index(list(range(len(fields)) if sample_ids is None else sample_ids), name="sample")
-    return pd.DataFrame(rows, index=index)
-
-
-def paper_r(statistic: str) -> tuple[float, str]:
-    """The paper's r for a statistic and how it is stated: ("=", 0.881) or (">", 0.98)."""
-    if statistic == "mean_P":
-        return PAPER_R_MEAN_DENSITY, "="
-    return PAPER_R_OTHERS_ABOVE, ">"
-
-
-def correlation_table(sim: pd.DataFrame, pred: pd.DataFrame) -> pd.DataFrame:
-    """Per statistic: Pearson r of simulated vs predicted values (samples with NaN dropped)
-    and the paper's value."""
-    rows = []
-    for name in sim.columns:
-        ok = np.isfinite(sim[name].to_numpy(float)) & np.isfinite(pred[name].to_numpy(float))
-        reference, relation = paper_r(name)
-        rows.append({"statistic": name, "r": pearson_r(sim[name][ok], pred[name][ok]),
-                     "n": int(ok.sum()), "paper_r": reference, "paper_relation": relation})
-    return pd.DataFrame(rows).set_index("statistic")
-
-
-def best_worst(mae: pd.DataFrame, field: str, n: int = 6) -> tuple[list, list]:
-    """Sample ids of the n lowest and n highest MAE for `field` (best first, worst first)."""
-    ordered = mae[field].sort_values(kind="stable")
-    return list(ordered.index[:n]), list(ordered.index[::-1][:n])
 
 
 @dataclass
@@ -109,92 +46,6 @@ def evaluate_predictions(pred, true, sample_ids, pixel_size: float, method: str,
     pred_stats = pred_stats.reindex(columns=sim_stats.columns)
     return Evaluation(method, mae_frame(pred, true, sample_ids), sim_stats, pred_stats,
                       correlation_table(sim_stats, pred_stats))
-
-
-# --- figures -------------------------------------------------------------------------------
-
-def _pyplot():
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-    return plt
-
-
-def plot_mae_distribution(mae: pd.DataFrame, path, title: str = ""):
-    """Histogram of per-sample MAE, one panel per field."""
-    plt = _pyplot()
-    fields = [c for c in mae.columns if c != "mean"]
-    fig, axes = plt.subplots(2, (len(fields) + 1) // 2, figsize=(12, 5))
-    for ax, name in zip(axes.flat, fields):
-        ax.hist(mae[name], bins=min(20, max(5, len(mae) // 3)), color="tab:blue")
-        ax.set_title(f"{name}: median {mae[name].median():.3g}", fontsize=9)
-        ax.set_xlabel("MAE")
-    fig.suptitle(title or "per-sample MAE (test split)")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def plot_best_worst(mae: pd.DataFrame, true: np.ndarray, pred: np.ndarray, field: str, path,
-                    which: str = "best", n: int = 6):
-    """Rows: the n best (or worst) samples by MAE of `field`; columns: simulation,
-    prediction, difference (prediction - simulation). true/pred rows follow mae's index."""
-    plt = _pyplot()
-    best, worst = best_worst(mae, field, n)
-    ids = best if which == "best" else worst
-    k = FIELD_NAMES.index(field)
-    position = {sid: i for i, sid in enumerate(mae.index)}
-    fig, axes = plt.subplots(len(ids), 3, figsize=(7.5, 2.3 * len(ids)), squeeze=False)
-    for row, sid in zip(axes, ids):
-        sim, prd = true[position[sid], k], pred[position[sid], k]
-        lo, hi = min(sim.min(), prd.min()), max(sim.max(), prd.max())
-        diff = prd - sim
-        span = np.abs(diff).max() or 1.0
-        for ax, image, label, kw in ((row[0], sim, "simulation", {"vmin": lo, "vmax": hi}),
-                                     (row[1], prd, "prediction", {"vmin": lo, "vmax": hi}),
-                                     (row[2], diff, "difference", {"vmin": -span, "vmax": span,
-                                                                   "cmap": "RdBu_r"})):
-            im = ax.imshow(image, origin="lower", **kw)
-            ax.set_xticks([]), ax.set_yticks([])
-            ax.set_title(f"{sid}: {label}" + (f" (MAE {mae.loc[sid, field]:.3g})"
-                                               if label == "difference" else ""), fontsize=8)
-            fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.suptitle(f"{field}: {n} {which} test samples by MAE")
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
-def plot_statistics_scatter(ev: Evaluation, path):
-    """Simulated vs predicted whole-mould statistics, with r and a dashed y = x."""
-    plt = _pyplot()
-    names = list(ev.sim_statistics.columns)
-    fig, axes = plt.subplots(2, (len(names) + 1) // 2, figsize=(3 * ((len(names) + 1) // 2), 6))
-    for ax, name in zip(axes.flat, names):
-        x, y = ev.sim_statistics[name], ev.pred_statistics[name]
-        ax.scatter(x, y, s=10)
-        lo, hi = np.nanmin([x.min(), y.min()]), np.nanmax([x.max(), y.max()])
-        ax.plot([lo, hi], [lo, hi], "k--", lw=0.8)
-        ax.set_title(f"{name}: r = {ev.correlations.loc[name, 'r']:.3f}", fontsize=9)
-        ax.set_xlabel("simulation", fontsize=8)
-        ax.set_ylabel("prediction", fontsize=8)
-    fig.suptitle(f"whole-mould statistics, {ev.method}")
-    fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
-
-
-def write_figures(ev: Evaluation, true: np.ndarray, pred: np.ndarray, out_dir) -> list[Path]:
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"{ev.method}_mae_distribution.png", out / f"{ev.method}_statistics.png"]
-    plot_mae_distribution(ev.mae, paths[0], f"per-sample MAE, {ev.method}")
-    plot_statistics_scatter(ev, paths[1])
-    for field in BEST_WORST_FIELDS:
-        for which in ("best", "worst"):
-            paths.append(out / f"{ev.method}_{field}_{which}.png")
-            plot_best_worst(ev.mae, true, pred, field, paths[-1], which)
-    return paths
 
 
 # --- the whole evaluation ------------------------------------------------------------------
@@ -226,16 +77,16 @@ def _test_arrays(ds, split: str):
 
 
 def _timed(fn, n: int):
-    """fn() and its wall seconds per mould (n moulds)."""
-    t0 = time.perf_counter()
+    """fn() and its CPU seconds per mould (n moulds): the cost unit of every study."""
+    t0 = time.process_time()
     result = fn()
-    return result, (time.perf_counter() - t0) / max(n, 1)
+    return result, (time.process_time() - t0) / max(n, 1)
 
 
-def _finish(predictions: dict, seconds: dict, true, ids, pixel_size, statistics_fn, out_dir,
-            figure_dir) -> dict:
+def _finish(predictions: dict, seconds: dict, true, ids, pixel_size, statistics_fn, out_dir) -> dict:
     """Metrics for every method; with out_dir, summary.csv, <method>_mae.csv and
-    <method>_correlations.csv there and the figures in figure_dir (default out_dir)."""
+    <method>_correlations.csv there. Returns the evaluations, the summary, and the truth and
+    predictions the figures draw (condor.plots.evaluation_figures)."""
     evaluations = {m: evaluate_predictions(p, true, ids, pixel_size, m, statistics_fn)
                    for m, p in predictions.items()}
     summary = pd.DataFrame([{**ev.summary(), "seconds_per_mould": seconds[m]}
@@ -247,8 +98,8 @@ def _finish(predictions: dict, seconds: dict, true, ids, pixel_size, statistics_
         for method, ev in evaluations.items():
             ev.mae.to_csv(out / f"{method}_mae.csv")
             ev.correlations.to_csv(out / f"{method}_correlations.csv")
-            write_figures(ev, true, predictions[method], figure_dir or out)
-    return {"evaluations": evaluations, "summary": summary}
+    return {"evaluations": evaluations, "summary": summary, "truth": true,
+            "predictions": predictions}
 
 
 def baseline_predictions(ds, inputs: np.ndarray, pixel_size: float) -> tuple[dict, dict]:
@@ -256,24 +107,22 @@ def baseline_predictions(ds, inputs: np.ndarray, pixel_size: float) -> tuple[dic
     ({name: fields}, {name: prediction seconds per mould})."""
     train_inputs, train_fields, _ = _arrays(ds, usable_samples(ds, "train"))
     predictions, seconds = {}, {}
-    for baseline in (MaskedMeanBaseline(), MouldBlurBaseline(pixel_size)):
-        fitted = baseline.fit(train_inputs, train_fields)
-        predictions[baseline.name], seconds[baseline.name] = _timed(
+    for fitted in fit_baselines(train_inputs, train_fields, pixel_size):
+        predictions[fitted.name], seconds[fitted.name] = _timed(
             lambda: fitted.predict(inputs), len(inputs))
     return predictions, seconds
 
 
 def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
              baselines: bool = True, pixel_size: float | None = None, statistics_fn=None,
-             device=None, name: str | None = None, figure_dir=None) -> dict:
+             device=None, name: str | None = None) -> dict:
     """Evaluate a checkpoint (in each prediction mode of `modes`, default the checkpoint's
     own and "train", as reference pix2pix predicts) and the baselines on `split`.
 
     Methods are named f"{name}_{mode}" (name defaults to the checkpoint's model kind).
     Returns {"evaluations": {method: Evaluation}, "summary": DataFrame (method rows, with
-    seconds_per_mould: wall time of the whole-split prediction / moulds)}; with `out_dir`,
-    also writes per-sample MAE CSVs, correlation CSVs, summary.csv, and figures (into
-    `figure_dir`, default out_dir).
+    seconds_per_mould: CPU time of the whole-split prediction / moulds)}; with `out_dir`,
+    also writes per-sample MAE CSVs, correlation CSVs and summary.csv.
     """
     inputs, true, ids = _test_arrays(ds, split)
     n_cells = np.asarray(ds["n_cells"].values)[usable_samples(ds, split)] if "n_cells" in ds else None
@@ -291,16 +140,16 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
         more, more_seconds = baseline_predictions(ds, inputs, pixel_size)
         predictions.update(more)
         seconds.update(more_seconds)
-    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir, figure_dir)
+    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir)
 
 
 def evaluate_baselines(ds, out_dir=None, split: str = "test", pixel_size: float | None = None,
-                       statistics_fn=None, figure_dir=None) -> dict:
+                       statistics_fn=None) -> dict:
     """The baselines alone, with the same metrics and files as `evaluate`."""
     inputs, true, ids = _test_arrays(ds, split)
     pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
     predictions, seconds = baseline_predictions(ds, inputs, pixel_size)
-    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir, figure_dir)
+    return _finish(predictions, seconds, true, ids, pixel_size, statistics_fn, out_dir)
 
 
 def combine_summaries(paths) -> pd.DataFrame:

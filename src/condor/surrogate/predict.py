@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import warnings
 from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import torch
+import xarray as xr
+
+from condor.metrics import density_sums, normalise_predicted
+from condor.store import quiet_zarr
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
 from .data import (FIELD_NAMES, N_SYMMETRIES, FieldScaling, apply_symmetry, resample_fields,
@@ -96,17 +100,6 @@ def run_generator(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str =
     return run_model(model, scaling, inputs, mode, batch_size, device, symmetrise, n_cells)[0]
 
 
-def normalise(raw: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Paper eq. (normalisation): Z_bar = Z * N_p / N_c with N_p the pixel count and N_c the
-    sum of the (predicted) density P over the grid. raw (..., 8, H, W) -> (normalised, N_c);
-    N_c <= 0 gives NaN fields."""
-    n_pixels = raw.shape[-1] * raw.shape[-2]
-    n_cells = raw[..., 0, :, :].sum(axis=(-2, -1), dtype=np.float64)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        factor = np.where(n_cells > 0, n_pixels / n_cells, np.nan)
-    return (raw * factor[..., None, None, None]).astype(np.float32), n_cells
-
-
 @dataclass
 class Prediction:
     raw: np.ndarray  # (8, H, W) or (S, 8, H, W): the weighted sums Z_p, as trained
@@ -180,17 +173,11 @@ class Predictor:
             n_cells = None
         raw, spread = run_model(self.model, self.scaling, batch, self.mode, batch_size,
                                 self.device, self.symmetrise, n_cells)
-        normalised, sums = normalise(raw)
+        normalised, sums = normalise_predicted(raw), density_sums(raw)
         if single:
             return Prediction(raw[0], normalised[0], float(sums[0]),
                               None if spread is None else spread[0])
         return Prediction(raw, normalised, sums, spread)
-
-    def predict_file(self, path) -> tuple[np.ndarray, Prediction]:
-        """(inputs, prediction) for a mould file (see read_mould): a mould JSON's N_c is its
-        exact lattice count, a picture's or array's is estimated from its pixels."""
-        inputs, n_cells = read_mould(path, self.native, self.box, self.depth)
-        return inputs, self(inputs, n_cells=n_cells)
 
 
 def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
@@ -202,34 +189,6 @@ def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
     return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise)(
         inputs, n_cells=n_cells)
 
-
-def plot_prediction(inputs: np.ndarray, fields: np.ndarray, path=None, title: str = "",
-                    field_names=FIELD_NAMES):
-    """Figure: mould and tether inputs, then each field. Returns the matplotlib Figure (saved
-    to `path` when given)."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = 2 + len(field_names)
-    fig, axes = plt.subplots(2, (n + 1) // 2, figsize=(2.4 * ((n + 1) // 2), 5))
-    panels = [("mould", inputs[0]), ("tether", inputs[1])] + list(zip(field_names, fields))
-    for ax, (name, image) in zip(axes.flat, panels):
-        im = ax.imshow(image, origin="lower", cmap="viridis")
-        ax.set_title(name, fontsize=9)
-        ax.set_xticks([]), ax.set_yticks([])
-        fig.colorbar(im, ax=ax, fraction=0.046)
-    for ax in list(axes.flat)[len(panels):]:
-        ax.axis("off")
-    fig.suptitle(title)
-    fig.tight_layout()
-    if path is not None:
-        fig.savefig(path, dpi=100)
-        plt.close(fig)
-    return fig
-
-
-# --- reading moulds, writing predictions (the `condor predict` command) -------------------
 
 def _binary(mask: np.ndarray, what: str) -> np.ndarray:
     values = np.unique(mask)
@@ -253,49 +212,19 @@ def _png_channels(path) -> np.ndarray:
     return (pixels[::-1, :, :2].transpose(2, 0, 1) >= 128).astype(np.uint8)
 
 
-def read_mould(path, pixels: int, box: float | None = None,
-               depth: float | None = None) -> tuple[np.ndarray, int | None]:
-    """(inputs, N_c) for the mould in `path` (see read_mould_inputs): N_c is the lattice count
-    of a .json mould at `depth` (physics.n_cells_of_mould), None for .npy/.png or no depth."""
-    from pathlib import Path
-
-    inputs = read_mould_inputs(path, pixels, box)
-    if Path(path).suffix.lower() != ".json" or depth is None:
-        return inputs, None
-    from condor.moulds import load_json
-
-    from .physics import n_cells_of_mould
-
-    mould = load_json(path)
-    return inputs, n_cells_of_mould(mould.polygon, mould.tethers, depth)
-
-
 def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray:
-    """Input channels (2, pixels, pixels) uint8 for the mould in `path`:
-
-    - .json: a mould from `condor mould` / `condor.moulds.save_json`, rasterised with
-      `condor.moulds.input_channels` (its box must equal `box` in l0, when given);
-    - .npy: a (2, H, W) 0/1 array (mould, tether);
-    - .png: a two-channel picture (see _png_channels).
-    Arrays at another resolution are resampled when the ratio is an integer."""
-    from pathlib import Path
-
+    """Input channels (2, pixels, pixels) uint8 given as a picture of them: a (2, H, W) 0/1
+    .npy array (mould, tether) or a two-channel .png (see _png_channels), at the checkpoint's
+    grid. (A mould itself, as JSON, SVG or DXF: condor.drawings.load_mould.)"""
     path = Path(path)
     suffix = path.suffix.lower()
-    if suffix == ".json":
-        from condor.moulds import input_channels, load_json
-
-        mould = load_json(path)
-        if box is not None and abs(mould.box - box) > 1e-6 * box:
-            raise ValueError(f"{path} is a mould for a {mould.box:g} l0 box, the checkpoint was "
-                             f"trained on a {box:g} l0 box")
-        return input_channels(mould, pixels)
     if suffix == ".npy":
         array = np.load(path, allow_pickle=False)
     elif suffix == ".png":
         array = _png_channels(path)
     else:
-        raise ValueError(f"mould file {str(path)!r} must end in .json, .npy or .png")
+        raise ValueError(f"input channels {str(path)!r} must end in .npy or .png (a mould: "
+                         ".json, .svg or .dxf)")
     if array.ndim != 3 or array.shape[0] != 2 or array.shape[1] != array.shape[2]:
         raise ValueError(f"{path}: inputs must have shape (2, H, H), got {array.shape}")
     array = _binary(array, str(path))
@@ -311,8 +240,6 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
     """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
     (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x), x/y pixel
     centres in l0 (in pixels when pixel_size is None)."""
-    import xarray as xr
-
     n = inputs.shape[-1]
     step = 1.0 if pixel_size is None else float(pixel_size)
     centres = (np.arange(n) + 0.5) * step
@@ -331,53 +258,14 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
                "length_unit": "l0" if pixel_size is not None else "pixel", **(attrs or {})})
 
 
-def plot_raw_and_normalised(inputs: np.ndarray, prediction: Prediction, path, title: str = ""):
-    """Figure: the inputs, then each field raw, normalised and (when predicted) its spread."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    n = len(FIELD_NAMES)
-    rows = [[("mould", inputs[0]), ("tether", inputs[1])],
-            [(f"{k} raw", f) for k, f in zip(FIELD_NAMES, prediction.raw)],
-            [(f"{k} normalised", f) for k, f in zip(FIELD_NAMES, prediction.normalised)]]
-    if prediction.spread is not None:
-        rows.append([(f"{k} spread", f) for k, f in zip(FIELD_NAMES, prediction.spread)])
-    fig, axes = plt.subplots(len(rows), n, figsize=(2.2 * n, 2.2 * len(rows)))
-    for ax_row, panels in zip(axes, rows):
-        for ax in ax_row:
-            ax.axis("off")
-        for ax, (name, image) in zip(ax_row, panels):
-            ax.axis("on")
-            im = ax.imshow(image, origin="lower", cmap="viridis")
-            ax.set_title(name, fontsize=8)
-            ax.set_xticks([]), ax.set_yticks([])
-            fig.colorbar(im, ax=ax, fraction=0.046)
-    fig.suptitle(title)
-    fig.tight_layout()
-    fig.savefig(path, dpi=90)
-    plt.close(fig)
-
-
 def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
                      pixel_size: float | None = None, attrs: dict | None = None,
                      overwrite: bool = False) -> None:
-    """Write a prediction to `path`: a .zarr store (xarray, see prediction_dataset) or a
-    .png picture; ValueError for another suffix. An existing .zarr is replaced only with
-    `overwrite`."""
-    from pathlib import Path
-
+    """Write a prediction as a .zarr store (xarray, see prediction_dataset); an existing one is
+    replaced only with `overwrite`. (A picture of it: condor.plots.prediction_panels.)"""
     path = Path(path)
-    suffix = path.suffix.lower()
-    if suffix == ".zarr":
-        with warnings.catch_warnings():
-            # zarr 3 warns that string coordinates and consolidated metadata are outside the
-            # v3 spec; xarray reads both back.
-            warnings.filterwarnings("ignore", module="zarr")
-            prediction_dataset(prediction, inputs, pixel_size, attrs).to_zarr(
-                path, mode="w" if overwrite else "w-")
-    elif suffix == ".png":
-        title = f"predicted fields, N_c = {float(prediction.n_cells):.1f}"
-        plot_raw_and_normalised(inputs, prediction, path, title)
-    else:
-        raise ValueError(f"--out {str(path)!r} must end in .zarr or .png")
+    if path.suffix.lower() != ".zarr":
+        raise ValueError(f"prediction store {str(path)!r} must end in .zarr")
+    with quiet_zarr():
+        prediction_dataset(prediction, inputs, pixel_size, attrs).to_zarr(
+            path, mode="w" if overwrite else "w-")
