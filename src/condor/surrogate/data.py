@@ -259,8 +259,14 @@ class SampleSource:
     one sample per access."""
 
     def __init__(self, ds, indices, scaling: FieldScaling | None, size: int | None = None,
-                 preload: bool | None = None):
+                 preload: bool | None = None, replica_mean: bool = False):
         self.ds = ds
+        # The target of a sample whose mould has replicas: its fields, or (replica_mean) the
+        # mean of the mould's ok replicas (the store's fields_mean).
+        self.mean_row = {}
+        if replica_mean and "fields_mean" in ds:
+            ok = np.asarray(ds["n_replicas_ok"].values) >= 2
+            self.mean_row = {int(m): k for k, m in enumerate(ds["replicated"].values) if ok[k]}
         self.indices = np.asarray(indices, dtype=np.int64)
         self.scaling = scaling
         self.native = int(ds.sizes["x"])
@@ -288,6 +294,12 @@ class SampleSource:
             raise DataError(f"cannot read sample(s) {_named(self.ds, bad or positions)} of the "
                             f"dataset ({type(err).__name__}: {str(err)[:200]}); condor "
                             "check-store --deep lists the corrupt samples") from None
+        if self.mean_row:
+            moulds = np.atleast_1d(np.asarray(self.ds["mould"].values)[positions])
+            for row, mould in enumerate(moulds):
+                if int(mould) in self.mean_row:
+                    fields[row] = self.ds["fields_mean"].isel(
+                        replicated=self.mean_row[int(mould)]).values
         bad = ~np.isfinite(fields).all(axis=tuple(range(1, fields.ndim)))
         if bad.any():
             raise DataError(f"sample(s) {_named(self.ds, positions[bad])} marked ok hold NaN or "

@@ -35,6 +35,9 @@ HEADS = ("tanh", "physics")
 LOSSES = ("l1", "mse", "gaussian")
 SCALINGS = ("minmax", "standard")
 LOSS_REGIONS = ("all", "tissue")
+# How training uses the replicas of a training mould (simulation.replicas.train > 1): replica
+# 0 only, every replica as a sample, or replica 0's inputs with the replicas' mean as target.
+REPLICA_USES = ("first", "all", "mean")
 # Config keys that may change between a run and its resumption.
 RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode",
                   "symmetrise"}
@@ -66,6 +69,7 @@ class TrainConfig:
     nll_weight: weight of the spread's NLL against the mean's squared error (physics head).
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
+    replicas: what a training mould with several replicas contributes (REPLICA_USES).
     """
 
     model: str = "pix2pix"
@@ -91,6 +95,7 @@ class TrainConfig:
     loss_region: str = "all"
     nll_weight: float = 1.0
     detach_spread: bool = True
+    replicas: str = "all"
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -104,7 +109,7 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.prediction_mode {self.prediction_mode!r} is not one "
                              f"of {PREDICTION_MODES}")
         for name, allowed in (("head", HEADS), ("loss", LOSSES), ("scaling", SCALINGS),
-                              ("loss_region", LOSS_REGIONS)):
+                              ("loss_region", LOSS_REGIONS), ("replicas", REPLICA_USES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"TrainConfig.{name} {getattr(self, name)!r} is not one of {allowed}")
         if (self.head == "physics") != (self.loss == "gaussian"):
@@ -300,7 +305,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
     check_dataset(dataset)
     device = default_device(device)
     native = int(dataset.sizes["x"])
-    train_idx = usable_samples(dataset, "train")
+    train_idx = usable_samples(dataset, "train", all_replicas=cfg.replicas == "all")
     if len(train_idx) == 0:
         raise ValueError("dataset has no usable ('ok') samples in the 'train' split")
     val_idx = usable_samples(dataset, "val")[:cfg.max_val_samples]
@@ -319,7 +324,8 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
             scaling, history, start = scaling_from_checkpoint(state), list(state["history"]), state["epoch"]
         else:
             scaling, history, start = output_map(cfg, dataset, train_idx, G.cfg.size), [], 0
-        train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size)
+        train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size,
+                                 replica_mean=cfg.replicas == "mean")
         val_src = SampleSource(dataset, val_idx, None, native, preload=False)
         for epoch in range(start, cfg.epochs):
             t0 = time.perf_counter()
