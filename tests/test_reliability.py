@@ -3,7 +3,9 @@
 Each test copies one finished tiny dataset (built once per module, `--until dataset`) and
 makes one mistake on the copy."""
 
+import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -131,12 +133,10 @@ def test_a_second_run_on_the_same_folder_stops_at_once(folder):
         while not lock.exists() and time.time() < deadline and first.poll() is None:
             time.sleep(0.1)
         assert lock.exists(), "the first run never took the lock"
+        os.killpg(first.pid, signal.SIGSTOP)  # held mid-run, however little work was left
         second = run(folder, *small_args(folder, "--until", "sample_figure"), check=False)
         assert second.returncode != 0 and "in use by another run" in second.stderr
     finally:
-        import os
-        import signal
-
         os.killpg(first.pid, signal.SIGKILL)  # a kill leaves the lock file behind ...
         first.wait()
     assert lock.exists()
