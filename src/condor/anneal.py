@@ -29,7 +29,7 @@ import numba
 import numpy as np
 
 from condor.energy import DELTA, bond_energies, rest_length
-from condor.lattice import phi_at
+from condor.lattice import region_distance
 
 T_INIT = 0.0625  # kappa0 l0^2 (paper)
 T_RATIO = 1.0e7  # T_init / T_final (paper)
@@ -89,12 +89,13 @@ def trial_energy_change(
 @numba.njit(cache=True)
 def anneal_kernel(
     pos, ori, mobile, bond_i, bond_j, kbar, rest, cell_ptr, cell_bonds, delta,
-    phi, phi_x0, phi_y0, phi_h, depth, n_trials, t_init, t_ratio, seed, amp,
+    phi, phi_x0, phi_y0, phi_h, posts, depth, n_trials, t_init, t_ratio, seed, amp,
 ):
     """Run n_trials Metropolis trials in place on pos, ori (N, 3).
 
     amp: float64[2] step amplitudes (a_r, a_s), updated in place. Returns
-    (energy, accepted position moves, accepted orientation moves, rejected by confinement).
+    (energy, accepted position moves, accepted orientation moves, rejected by confinement,
+    bond energies evaluated).
     """
     bond_e = bond_energies(pos, ori, bond_i, bond_j, kbar, rest, delta)
     energy = bond_e.sum()
@@ -112,6 +113,7 @@ def anneal_kernel(
     acc_pos = acc_ori = 0
     tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
     n_outside = 0
+    bonds_evaluated = 0
     for trial in range(n_trials):
         cell = mobile[min(int(_next_uniform(state) * n_mobile), n_mobile - 1)]
         sqrt_t = math.sqrt(temp)
@@ -124,7 +126,8 @@ def anneal_kernel(
                 new_s[a] = ori[cell, a]
             outside = new_r[2] < 0.0 or new_r[2] > depth
             if not outside:
-                outside = phi_at(phi, phi_x0, phi_y0, phi_h, new_r[0], new_r[1]) < 0.0
+                outside = region_distance(phi, phi_x0, phi_y0, phi_h, posts, new_r[0],
+                                          new_r[1]) < 0.0
             if outside:
                 n_outside += 1
         else:
@@ -141,6 +144,7 @@ def anneal_kernel(
                 new_s[a] *= inv
         de = 0.0
         if not outside:
+            bonds_evaluated += cell_ptr[cell + 1] - cell_ptr[cell]
             de = trial_energy_change(
                 pos, ori, cell, new_r, new_s, cell_ptr, cell_bonds, bond_i, bond_j, kbar, rest,
                 delta, bond_e, scratch,
@@ -169,7 +173,7 @@ def anneal_kernel(
                 up = acc_ori_sweep > TARGET_ACCEPT * tried_ori_sweep
                 amp[1] = amp[1] * ADAPT_FACTOR if up else amp[1] / ADAPT_FACTOR
             tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
-    return energy, acc_pos, acc_ori, n_outside
+    return energy, acc_pos, acc_ori, n_outside, bonds_evaluated
 
 
 def anneal(
@@ -190,16 +194,18 @@ def anneal(
     seed = int(np.random.default_rng(seed_seq).integers(1, 2**63 - 1))
     amp = np.array([INIT_AMP_POS, INIT_AMP_ORI])
     region = lattice.region
-    energy, acc_pos, acc_ori, n_outside = anneal_kernel(
+    energy, acc_pos, acc_ori, n_outside, bonds_evaluated = anneal_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
         lattice.cell_ptr, lattice.cell_bonds, delta, region.phi, region.phi_x0, region.phi_y0,
-        region.phi_h, region.depth, n_trials, t_init, t_ratio, seed, amp,
+        region.phi_h, region.posts, region.depth, n_trials, t_init, t_ratio, seed, amp,
     )
     info = {
         "anneal_trials": n_trials,
         "anneal_accept_pos": acc_pos / max(n_trials / 2, 1),
         "anneal_accept_ori": acc_ori / max(n_trials / 2, 1),
         "anneal_rejected_outside": int(n_outside),
+        "anneal_bonds_evaluated": int(bonds_evaluated),
+        "anneal_evaluations": float(bonds_evaluated / max(lattice.n_bonds, 1)),
         "anneal_running_energy": float(energy),
         "anneal_final_step_pos": float(min(amp[0] * math.sqrt(t_init / t_ratio), MAX_STEP_POS)),
     }
