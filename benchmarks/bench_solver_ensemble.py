@@ -113,6 +113,12 @@ def compare(ref: dict, other: dict) -> dict:
             "resolution": resolution, "noise": float(noise)}
 
 
+def _nanmax(values) -> str:
+    """Largest value over the runs that report it ("n/a" for runs of code without it)."""
+    values = np.asarray(values)
+    return f"{np.nanmax(values):.2g}" if np.isfinite(values).any() else "n/a"
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="paper")
@@ -141,7 +147,7 @@ def main() -> None:
         d, dlo, dhi = c["distance"]
         print(f"| {label(spec)} | {np.median(res['evaluations']):.0f} "
               f"({np.max(res['evaluations']):.0f}) | {np.median(res['seconds']):.1f} | "
-              f"{np.max(res['max_force']):.2g} | {100 * c['dE_median']:+.2f}%, "
+              f"{_nanmax(res['max_force'])} | {100 * c['dE_median']:+.2f}%, "
               f"{100 * c['dE_mould'][0]:+.2f}% [{100 * lo:+.2f}, {100 * hi:+.2f}] | "
               f"{d:.4f} [{dlo:.4f}, {dhi:.4f}] | {c['resolution']:.4f} | {c['noise']:.4f} |")
 
