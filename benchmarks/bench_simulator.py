@@ -1,9 +1,23 @@
-"""Kernel speed: ns per Metropolis trial, ns per bond energy, ms per energy+gradient at 10k cells;
-and how fast FIRE converges: evaluations until the energy is within 1% / 0.1% / 0.01% of its
-final value and until the largest force falls below 1e-3 / 1e-4 (one generated mould).
+"""Simulator speed: kernels, and the cost of a solve in evaluation-equivalents beside CPU seconds.
 
-Run: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_simulator.py [--fire-scene paper]
-(writes results/benchmarks/bench_simulator.csv and fire_convergence_<scene>.csv)
+Kernels, measured in one run (medians, process time, one thread), at about 10,000 cells:
+energy+gradient (ms, ns per bond), one bond energy (ns), a Metropolis trial (ns; bar 0.5 us)
+and the rasterisation of 10,000 cells into 8 fields at 256 px (ms; bar 20 ms).
+
+Solves: each solver of --solvers (default: the default solver and the old default, hybrid) on
+mould 0 of dataset seed --seed in --scene (replica 0's seed), printing evaluation-equivalents
+(info["evaluations"]: minimiser evaluations plus the anneal's bonds evaluated over the bonds
+of one evaluation), CPU seconds, CPU ms per evaluation-equivalent, the largest residual force
+and E/cell; and for L-BFGS the evaluations until the energy is within 1% / 0.1% / 0.01% of its
+final value and the largest residual force is below 1e-3 / 3e-4 / 1e-4 (run to 1e-5).
+A busy machine inflates the seconds, not the evaluations: compare evaluations across runs,
+seconds only within one.
+
+Walls: a 20 x 10 l0 rectangle with two posts (radius 1, depth 4), seeds 0-3, each solver: the
+largest residual force over all cells and over the cells touching a post (within 1e-6 l0).
+
+Run: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_simulator.py [--scene paper]
+(writes results/benchmarks/bench_simulator.csv and solve_cost_<scene>.csv)
 """
 
 import argparse
@@ -14,10 +28,14 @@ from pathlib import Path
 import numpy as np
 from shapely.geometry import box
 
+from condor import fields as F
 from condor.anneal import anneal
 from condor.energy import DELTA, bond_energies, energy_gradient, random_orientations
 from condor.lattice import build_lattice
-from condor.simulate import warm_up
+from condor.lbfgs import minimise_lbfgs
+from condor.moulds import generate_mould
+from condor.scenes import PAPER_BOX, get_scene
+from condor.simulate import DEFAULT_SOLVER, simulate, warm_up
 
 
 def median_time(fn, repeats=7):
@@ -29,40 +47,7 @@ def median_time(fn, repeats=7):
     return float(np.median(times))
 
 
-def fire_convergence(scene_name: str) -> dict:
-    """FIRE from the lattice of generate_mould(0, 0) to ftol 1e-5 (20,000 evaluations at most)."""
-    from condor.minimise import minimise
-    from condor.moulds import generate_mould
-    from condor.scenes import get_scene
-
-    scene = get_scene(scene_name)
-    m = generate_mould(0, 0, scene.box)
-    lat = build_lattice(m.polygon, m.tethers, scene.depth)
-    ori = random_orientations(lat.n_cells, np.random.default_rng([1, 1]))
-    trace = np.full((20000, 2), np.nan)
-    t = time.process_time()
-    _, _, info = minimise(lat, lat.positions, ori, max_iter=20000, ftol=1e-5, trace=trace)
-    seconds = time.process_time() - t
-    n = info["min_iterations"]
-    energy, force = trace[:n, 0], trace[:n, 1]
-
-    def first(mask):
-        return int(np.argmax(mask)) + 1 if mask.any() else -1
-
-    row = {"scene": scene_name, "n_cells": lat.n_cells, "evaluations": n, "seconds": seconds,
-           "ms_per_evaluation": 1e3 * seconds / n, "final_max_force": info["min_max_force"]}
-    for tol in (1e-2, 1e-3, 1e-4):
-        row[f"evals_energy_within_{tol:g}"] = first(energy <= energy[-1] * (1 + tol))
-    for tol in (1e-3, 1e-4):
-        row[f"evals_force_below_{tol:g}"] = first(force < tol)
-    return row
-
-
-def main():
-    ap = argparse.ArgumentParser()
-    ap.add_argument("--fire-scene", default="default", help="scene of the FIRE convergence run")
-    a = ap.parse_args()
-    warm_up()
+def kernels() -> dict:
     side = np.sqrt(10000 / 6)  # ~10,000 cells: 6 layers of 1 cell per l0^2 at depth 4
     lat = build_lattice(box(0, 0, side, side), np.array([[side / 3, side / 2, 1.5]]), 4.0)
     ori = random_orientations(lat.n_cells, np.random.default_rng([0, 0]))
@@ -74,7 +59,19 @@ def main():
     n_mobile = int((~lat.fixed).sum())
     budget = 20
     t_anneal = median_time(lambda: anneal(lat, pos, ori, budget, [0, 2]), repeats=3)
-    rows = {
+    # rasterisation: 10,000 cells over a disc of 40% of the paper box (bench_fields' layout)
+    rng = np.random.default_rng([0, 10000])
+    radius = np.sqrt(0.4 / np.pi) * PAPER_BOX * np.sqrt(rng.uniform(size=10000))
+    angle = rng.uniform(0, 2 * np.pi, size=10000)
+    xy = PAPER_BOX / 2 + np.stack([radius * np.cos(angle), radius * np.sin(angle)], axis=1)
+    s = rng.normal(size=(10000, 3))
+    s /= np.linalg.norm(s, axis=1, keepdims=True)
+    values = F.cell_values(s, rng.normal(0.1, 0.05, size=10000))
+    F.rasterise(xy, values, PAPER_BOX, 256)
+    t_raster = median_time(lambda: F.rasterise(xy, values, PAPER_BOX, 256), repeats=15)
+    t_weights = median_time(lambda: [F.pixel_weights(xy[:, k], 256, PAPER_BOX / 256, F.SIGMA_L0)
+                                     for k in (0, 1)], repeats=15)
+    return {
         "n_cells": lat.n_cells,
         "n_bonds": lat.n_bonds,
         "bonds_per_cell": lat.n_bonds * 2 / lat.n_cells,
@@ -82,22 +79,113 @@ def main():
         "ns_per_bond_energy": 1e9 * t_bonds / lat.n_bonds,
         "ns_per_bond_energy_gradient": 1e9 * t_grad / lat.n_bonds,
         "ns_per_metropolis_trial": 1e9 * t_anneal / (budget * n_mobile),
+        "ms_raster_10k_cells_8_fields_256px": 1e3 * t_raster,
+        "ms_raster_pixel_weights_part": 1e3 * t_weights,
     }
-    for k, v in rows.items():
-        print(f"{k:30s} {v:.4g}")
+
+
+def solve_costs(scene_name: str, seed: int, solvers) -> list[dict]:
+    scene = get_scene(scene_name)
+    mould = generate_mould(seed, 0, scene.box)
+    sim_seed = int(np.random.default_rng([seed, 0, 1]).integers(2**62))
+    rows = []
+    for solver in solvers:
+        r = simulate(mould.polygon, mould.tethers, scene.depth, solver, seed=sim_seed)
+        evaluations = r.info["evaluations"]
+        rows.append({"scene": scene_name, "solver": solver, "n_cells": r.n_cells,
+                     "evaluations": evaluations, "seconds": r.seconds,
+                     "ms_per_evaluation": 1e3 * r.seconds / max(evaluations, 1),
+                     "max_force": r.info["max_force"], "energy_per_cell": r.energy_per_cell,
+                     "status": r.status})
+    return rows
+
+
+def lbfgs_convergence(scene_name: str, seed: int) -> dict:
+    scene = get_scene(scene_name)
+    mould = generate_mould(seed, 0, scene.box)
+    lat = build_lattice(mould.polygon, mould.tethers, scene.depth)
+    sim_seed = int(np.random.default_rng([seed, 0, 1]).integers(2**62))
+    ori = random_orientations(lat.n_cells, np.random.default_rng([sim_seed, 1]))
+    trace = np.full((20000, 2), np.nan)
+    _, _, info = minimise_lbfgs(lat, lat.positions, ori, 20000, 1e-5, trace=trace)
+    n = info["min_evaluations"]
+    energy, force = trace[:n, 0], trace[:n, 1]
+
+    def first(mask):
+        return int(np.argmax(mask)) + 1 if mask.any() else -1
+
+    row = {"scene": scene_name, "evaluations_to_1e-5": n}
+    for tol in (1e-2, 1e-3, 1e-4):
+        row[f"evals_energy_within_{tol:g}"] = first(energy <= energy[-1] * (1 + tol))
+    for tol in (1e-3, 3e-4, 1e-4):
+        row[f"evals_force_below_{tol:g}"] = first(force < tol)
+    return row
+
+
+def wall_residuals(solvers, seeds=range(4)) -> list[dict]:
+    from condor.walls import residual_forces
+
+    polygon, posts = box(0, 0, 20, 10), np.array([[5.0, 5.0, 1.0], [15.0, 5.0, 1.0]])
+    lat = build_lattice(polygon, posts, 4.0)
+    rows = []
+    for solver in solvers:
+        for seed in seeds:
+            r = simulate(polygon, posts, 4.0, solver, seed=seed)
+            f = residual_forces(lat, r.positions, r.orientations)
+            gap = np.min(np.hypot(r.positions[:, :1] - posts[:, 0], r.positions[:, 1:2] - posts[:, 1])
+                         - posts[:, 2], axis=1)
+            touching = (gap < 1e-6) & ~lat.fixed
+            rows.append({"solver": solver, "seed": seed, "max_force": float(f.max()),
+                         "cells_on_posts": int(touching.sum()),
+                         "max_force_on_posts": float(f[touching].max(initial=0.0)),
+                         "evaluations": r.info["evaluations"]})
+    return rows
+
+
+def _print(row: dict) -> None:
+    for k, v in row.items():
+        print(f"  {k:36s} {v:.4g}" if isinstance(v, float) else f"  {k:36s} {v}")
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--scene", default="default", help="scene of the solves")
+    ap.add_argument("--seed", type=int, default=2026, help="dataset seed of the mould")
+    ap.add_argument("--solvers", nargs="+", default=[DEFAULT_SOLVER, "hybrid"])
+    a = ap.parse_args()
+    warm_up()
     out = Path("results/benchmarks")
     out.mkdir(parents=True, exist_ok=True)
+    print("kernels (one run):")
+    k = kernels()
+    _print(k)
+    print(f"  Metropolis trial {k['ns_per_metropolis_trial'] / 1e3:.2f} us (bar 0.5 us); raster "
+          f"{k['ms_raster_10k_cells_8_fields_256px']:.1f} ms (bar 20 ms)")
     with open(out / "bench_simulator.csv", "w", newline="") as fh:
         w = csv.writer(fh)
-        w.writerow(rows.keys())
-        w.writerow(rows.values())
-    fire = fire_convergence(a.fire_scene)
-    for k, v in fire.items():
-        print(f"{k:30s} {v:.4g}" if isinstance(v, float) else f"{k:30s} {v}")
-    with open(out / f"fire_convergence_{a.fire_scene}.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(fire.keys())
-        w.writerow(fire.values())
+        w.writerow(k.keys())
+        w.writerow(k.values())
+    rows = solve_costs(a.scene, a.seed, a.solvers)
+    print(f"\nsolves ({a.scene} scene, mould 0 of seed {a.seed}):")
+    print("| solver | cells | evaluation-equivalents | CPU s | ms per evaluation | max force | "
+          "E/cell | status |")
+    print("|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        print(f"| {r['solver']} | {r['n_cells']} | {r['evaluations']:.0f} | {r['seconds']:.1f} | "
+              f"{r['ms_per_evaluation']:.2f} | {r['max_force']:.2g} | {r['energy_per_cell']:.6f} "
+              f"| {r['status']} |")
+    with open(out / f"solve_cost_{a.scene}.csv", "w", newline="") as fh:
+        w = csv.DictWriter(fh, fieldnames=list(rows[0]))
+        w.writeheader()
+        w.writerows(rows)
+    print("\nL-BFGS convergence:")
+    _print(lbfgs_convergence(a.scene, a.seed))
+    print("\nresidual forces at the walls (20 x 10 rectangle, two posts, depth 4):")
+    print("| solver | seed | evaluations | max force | cells on posts | max force on posts |")
+    print("|---|---|---|---|---|---|")
+    for r in wall_residuals(a.solvers):
+        print(f"| {r['solver']} | {r['seed']} | {r['evaluations']:.0f} | {r['max_force']:.2g} | "
+              f"{r['cells_on_posts']} | {r['max_force_on_posts']:.2g} |")
 
 
 if __name__ == "__main__":

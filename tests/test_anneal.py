@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from shapely.geometry import box
 
-from condor.anneal import anneal, trial_energy_change
+from condor.anneal import anneal, neighbour_lists, trial_energy_change
 from condor.energy import DELTA, bond_energies, random_orientations, total_energy
 from condor.lattice import build_lattice
 
@@ -22,14 +22,17 @@ def test_incremental_energy_change_equals_full_difference(mould):
     pos = lat.positions + rng.normal(scale=0.05, size=lat.positions.shape)
     args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
     bond_e = bond_energies(pos, ori, *args)
+    other, rest, kbar, twin = neighbour_lists(lat)
+    slot_e = bond_e[lat.cell_bonds]
+    assert np.array_equal(slot_e, slot_e[twin]) and np.all(twin != np.arange(len(twin)))
     scratch = np.empty(64)
     e0 = total_energy(pos, ori, *args)
     for cell in rng.choice(lat.n_cells, size=20, replace=False):
         new_r = pos[cell] + rng.uniform(-0.2, 0.2, 3)
         new_s = ori[cell] + rng.uniform(-0.5, 0.5, 3)
         new_s /= np.linalg.norm(new_s)
-        de = trial_energy_change(pos, ori, cell, new_r, new_s, lat.cell_ptr, lat.cell_bonds,
-                                 *args[:4], DELTA, bond_e, scratch)
+        de = trial_energy_change(pos, ori, cell, new_r, new_s, lat.cell_ptr, other, rest, kbar,
+                                 DELTA, slot_e, scratch)
         p2, o2 = pos.copy(), ori.copy()
         p2[cell], o2[cell] = new_r, new_s
         assert de == pytest.approx(total_energy(p2, o2, *args) - e0, rel=1e-9, abs=1e-12)

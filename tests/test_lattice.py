@@ -117,3 +117,15 @@ def test_signed_distance_matches_shapely():
 def test_bad_input_raises(polygon, tethers, depth, match):
     with pytest.raises(ValueError, match=match):
         build_lattice(polygon, tethers, depth)
+
+
+def test_posts_are_exact_circles_in_the_signed_distance():
+    """The posts' part of the distance is computed, not sampled: exact to round-off, where a
+    0.1 l0 grid would be off by ~h^2 / (8 r) and kinked at every grid line."""
+    tethers = np.array([[4.0, 3.0, 0.5]])
+    lat = build_lattice(box(0, 0, 8, 6), tethers, 2.0)
+    angle = np.random.default_rng([0, 2]).uniform(0, 2 * np.pi, 200)
+    radius = np.random.default_rng([0, 3]).uniform(0.3, 0.9, 200)
+    pts = np.stack([4 + radius * np.cos(angle), 3 + radius * np.sin(angle)], axis=1)
+    assert np.allclose(lat.region.signed_distance(pts), radius - 0.5, atol=1e-12)
+    np.testing.assert_array_equal(lat.region.posts, tethers)

@@ -7,7 +7,8 @@ from shapely.geometry import Polygon, box
 from condor.energy import DELTA, total_energy
 from condor.fields import cell_fields, normalise
 from condor.lattice import build_lattice
-from condor.simulate import SOLVERS, SimResult, diagnose, simulate, simulate_lattice
+from condor.simulate import (DEFAULT_FTOL, DEFAULT_SOLVER, SOLVERS, SimResult, diagnose, simulate,
+                             simulate_lattice)
 
 SQUARE = box(0, 0, 8, 6)
 TWO_POSTS = np.array([[2.0, 3.0, 0.8], [6.0, 3.0, 0.8]])
@@ -146,3 +147,36 @@ def test_a_bond_collapsing_during_the_solve_is_flagged_nonfinite(monkeypatch):
     monkeypatch.setattr(sim, "_solve", collapse)
     r = simulate(SQUARE, TWO_POSTS, 2.0, "minimise", seed=0)
     assert r.status.startswith("nonfinite")
+
+
+def test_every_result_reports_its_residual_force_and_cost():
+    from condor.walls import residual_forces
+
+    lat = build_lattice(SQUARE, TWO_POSTS, 2.0)
+    for solver in SOLVERS:
+        r = simulate(SQUARE, TWO_POSTS, 2.0, solver, budget=50 if solver == "anneal" else None,
+                     seed=1)
+        assert r.info["max_force"] == pytest.approx(
+            residual_forces(lat, r.positions, r.orientations).max(), rel=1e-12)
+        assert r.info["evaluations"] > 0
+    default = simulate(SQUARE, TWO_POSTS, 2.0, seed=1)
+    assert default.solver == DEFAULT_SOLVER
+    assert default.info["max_force"] <= DEFAULT_FTOL[DEFAULT_SOLVER]
+    assert default.info["evaluations"] == default.info["min_evaluations"]
+
+
+def test_anneal_cost_counts_the_bonds_its_trials_evaluated():
+    """One evaluation-equivalent = n_bonds bond energies; a trial evaluates the bonds of its
+    cell (none when the move leaves the region), so the count per evaluated trial is the
+    mean bond count of the mobile cells, and the hybrid adds FIRE's evaluations."""
+    lat = build_lattice(SQUARE, TWO_POSTS, 2.0)
+    r = simulate(SQUARE, TWO_POSTS, 2.0, "anneal", budget=200, seed=2)
+    info = r.info
+    degree = np.diff(lat.cell_ptr)[~lat.fixed]
+    evaluated_trials = info["anneal_trials"] - info["anneal_rejected_outside"]
+    per_trial = info["anneal_bonds_evaluated"] / evaluated_trials
+    assert per_trial == pytest.approx(degree.mean(), rel=0.03)
+    assert info["evaluations"] == pytest.approx(info["anneal_bonds_evaluated"] / lat.n_bonds)
+    h = simulate(SQUARE, TWO_POSTS, 2.0, "hybrid", seed=2)
+    assert h.info["evaluations"] == pytest.approx(h.info["anneal_evaluations"]
+                                                  + h.info["min_iterations"])

@@ -16,7 +16,8 @@ Step-size adaptation: dr = a_r sqrt(T) and ds = a_s sqrt(T) follow the cooling (
 fluctuations scale as sqrt(T) in a harmonic well); after every sweep (n_mobile trials) each
 amplitude a is multiplied by 1.2 if that move type's acceptance exceeded 40% and divided by
 1.2 otherwise, with dr <= 0.5 l0 and ds <= 1. A trial is O(1): it recomputes only the bonds of
-the moved cell through a fixed per-cell CSR bond list, against cached bond energies.
+the moved cell through per-cell bond lists that hold each bond's other cell, rest length, kbar
+and cached energy contiguously (`neighbour_lists`; an accepted move updates both copies).
 
 Randomness: a xorshift64* stream seeded from numpy.random.default_rng; deterministic.
 """
@@ -29,7 +30,7 @@ import numba
 import numpy as np
 
 from condor.energy import DELTA, bond_energies, rest_length
-from condor.lattice import phi_at
+from condor.lattice import region_distance
 
 T_INIT = 0.0625  # kappa0 l0^2 (paper)
 T_RATIO = 1.0e7  # T_init / T_final (paper)
@@ -57,19 +58,19 @@ def _next_uniform(state):
 
 
 @numba.njit(cache=True)
-def trial_energy_change(
-    pos, ori, cell, new_r, new_s, cell_ptr, cell_bonds, bond_i, bond_j, kbar, rest, delta,
-    bond_e, scratch,
-):
-    """Energy change of moving `cell` to (new_r, new_s), using cached bond energies bond_e.
+def trial_energy_change(pos, ori, cell, new_r, new_s, cell_ptr, nbr_other, nbr_rest, nbr_kbar,
+                        delta, slot_e, scratch):
+    """Energy change of moving `cell` to (new_r, new_s), using cached bond energies.
 
-    Writes the new energy of each of the cell's bonds into scratch[0:count] (in CSR order).
+    The cell's bonds are the slots cell_ptr[cell]:cell_ptr[cell + 1] of the per-cell lists
+    (`neighbour_lists`): the other cell, rest length, kbar and cached energy of each bond,
+    laid out contiguously so that a trial reads them in order. Writes the new energy of each
+    of the cell's bonds into scratch[0:count] (in slot order).
     """
     de = 0.0
     n = 0
     for k in range(cell_ptr[cell], cell_ptr[cell + 1]):
-        b = cell_bonds[k]
-        other = bond_j[b] if bond_i[b] == cell else bond_i[b]
+        other = nbr_other[k]
         # Bond vector from cell to other; c_i, c_j are even in the sign of l.
         lx = pos[other, 0] - new_r[0]
         ly = pos[other, 1] - new_r[1]
@@ -78,26 +79,43 @@ def trial_energy_change(
         inv = 1.0 / d
         c1 = (lx * new_s[0] + ly * new_s[1] + lz * new_s[2]) * inv
         c2 = (lx * ori[other, 0] + ly * ori[other, 1] + lz * ori[other, 2]) * inv
-        g = d - rest_length(rest[b], c1, c2, delta)
-        e_new = 0.5 * kbar[b] * g * g
+        g = d - rest_length(nbr_rest[k], c1, c2, delta)
+        e_new = 0.5 * nbr_kbar[k] * g * g
         scratch[n] = e_new
         n += 1
-        de += e_new - bond_e[b]
+        de += e_new - slot_e[k]
     return de
+
+
+def neighbour_lists(lattice):
+    """Per-cell bond slots in CSR order (cell_ptr): (other cell, rest, kbar, twin), twin being
+    the slot of the same bond in the other cell's list (both hold its cached energy)."""
+    cell_ptr, bonds = lattice.cell_ptr, lattice.cell_bonds
+    owner = np.repeat(np.arange(lattice.n_cells), np.diff(cell_ptr))
+    other = np.where(lattice.bond_i[bonds] == owner, lattice.bond_j[bonds], lattice.bond_i[bonds])
+    order = np.argsort(bonds, kind="stable")  # the two slots of each bond, adjacent
+    twin = np.empty(len(bonds), dtype=np.int64)
+    twin[order[0::2]] = order[1::2]
+    twin[order[1::2]] = order[0::2]
+    return (other.astype(np.int64), lattice.bond_rest[bonds].copy(),
+            lattice.bond_kbar[bonds].copy(), twin)
 
 
 @numba.njit(cache=True)
 def anneal_kernel(
-    pos, ori, mobile, bond_i, bond_j, kbar, rest, cell_ptr, cell_bonds, delta,
-    phi, phi_x0, phi_y0, phi_h, depth, n_trials, t_init, t_ratio, seed, amp,
+    pos, ori, mobile, bond_i, bond_j, kbar, rest, cell_ptr, cell_bonds, nbr_other, nbr_rest,
+    nbr_kbar, twin, delta, phi, phi_x0, phi_y0, phi_h, posts, depth, n_trials, t_init, t_ratio,
+    seed, amp,
 ):
     """Run n_trials Metropolis trials in place on pos, ori (N, 3).
 
     amp: float64[2] step amplitudes (a_r, a_s), updated in place. Returns
-    (energy, accepted position moves, accepted orientation moves, rejected by confinement).
+    (energy, accepted position moves, accepted orientation moves, rejected by confinement,
+    bond energies evaluated).
     """
     bond_e = bond_energies(pos, ori, bond_i, bond_j, kbar, rest, delta)
     energy = bond_e.sum()
+    slot_e = bond_e[cell_bonds]
     max_deg = 0
     for c in range(len(cell_ptr) - 1):
         max_deg = max(max_deg, cell_ptr[c + 1] - cell_ptr[c])
@@ -112,6 +130,7 @@ def anneal_kernel(
     acc_pos = acc_ori = 0
     tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
     n_outside = 0
+    bonds_evaluated = 0
     for trial in range(n_trials):
         cell = mobile[min(int(_next_uniform(state) * n_mobile), n_mobile - 1)]
         sqrt_t = math.sqrt(temp)
@@ -124,7 +143,8 @@ def anneal_kernel(
                 new_s[a] = ori[cell, a]
             outside = new_r[2] < 0.0 or new_r[2] > depth
             if not outside:
-                outside = phi_at(phi, phi_x0, phi_y0, phi_h, new_r[0], new_r[1]) < 0.0
+                outside = region_distance(phi, phi_x0, phi_y0, phi_h, posts, new_r[0],
+                                          new_r[1]) < 0.0
             if outside:
                 n_outside += 1
         else:
@@ -141,15 +161,15 @@ def anneal_kernel(
                 new_s[a] *= inv
         de = 0.0
         if not outside:
-            de = trial_energy_change(
-                pos, ori, cell, new_r, new_s, cell_ptr, cell_bonds, bond_i, bond_j, kbar, rest,
-                delta, bond_e, scratch,
-            )
+            bonds_evaluated += cell_ptr[cell + 1] - cell_ptr[cell]
+            de = trial_energy_change(pos, ori, cell, new_r, new_s, cell_ptr, nbr_other,
+                                     nbr_rest, nbr_kbar, delta, slot_e, scratch)
         if not outside and (de <= 0.0 or _next_uniform(state) < math.exp(-de / temp)):
             energy += de
             n = 0
             for k in range(cell_ptr[cell], cell_ptr[cell + 1]):
-                bond_e[cell_bonds[k]] = scratch[n]
+                slot_e[k] = scratch[n]
+                slot_e[twin[k]] = scratch[n]
                 n += 1
             for a in range(3):
                 pos[cell, a] = new_r[a]
@@ -169,7 +189,7 @@ def anneal_kernel(
                 up = acc_ori_sweep > TARGET_ACCEPT * tried_ori_sweep
                 amp[1] = amp[1] * ADAPT_FACTOR if up else amp[1] / ADAPT_FACTOR
             tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
-    return energy, acc_pos, acc_ori, n_outside
+    return energy, acc_pos, acc_ori, n_outside, bonds_evaluated
 
 
 def anneal(
@@ -190,16 +210,18 @@ def anneal(
     seed = int(np.random.default_rng(seed_seq).integers(1, 2**63 - 1))
     amp = np.array([INIT_AMP_POS, INIT_AMP_ORI])
     region = lattice.region
-    energy, acc_pos, acc_ori, n_outside = anneal_kernel(
+    energy, acc_pos, acc_ori, n_outside, bonds_evaluated = anneal_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
-        lattice.cell_ptr, lattice.cell_bonds, delta, region.phi, region.phi_x0, region.phi_y0,
-        region.phi_h, region.depth, n_trials, t_init, t_ratio, seed, amp,
+        lattice.cell_ptr, lattice.cell_bonds, *neighbour_lists(lattice), delta, region.phi, region.phi_x0, region.phi_y0,
+        region.phi_h, region.posts, region.depth, n_trials, t_init, t_ratio, seed, amp,
     )
     info = {
         "anneal_trials": n_trials,
         "anneal_accept_pos": acc_pos / max(n_trials / 2, 1),
         "anneal_accept_ori": acc_ori / max(n_trials / 2, 1),
         "anneal_rejected_outside": int(n_outside),
+        "anneal_bonds_evaluated": int(bonds_evaluated),
+        "anneal_evaluations": float(bonds_evaluated / max(lattice.n_bonds, 1)),
         "anneal_running_energy": float(energy),
         "anneal_final_step_pos": float(min(amp[0] * math.sqrt(t_init / t_ratio), MAX_STEP_POS)),
     }

@@ -14,7 +14,7 @@ from condor import plots
 from condor.drawings import load_mould, training_domain_check
 from condor.moulds import MouldParams, input_channels, save_json
 from condor.scenes import PRESETS, Scene, get_scene
-from condor.simulate import SimResult
+from condor.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
 from condor.store import FORMAT, check_metadata, check_store
 
@@ -302,8 +302,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("mould", help="mould: the generator's JSON, a minimal JSON (outline and "
                    "tethers), an SVG or a DXF drawing (docs/user_moulds.md)")
     p.add_argument("--out", required=True, help="result file (.npz)")
-    p.add_argument("--solver", default=None, choices=["anneal", "minimise", "hybrid"],
-                   help="default: the simulator's (hybrid)")
+    p.add_argument("--solver", default=None, choices=list(SOLVERS),
+                   help=f"default: the simulator's ({DEFAULT_SOLVER})")
     p.add_argument("--budget", type=_positive_float, default=None,
                    help="solver budget (anneal: moves per cell); default: the solver's own")
     p.add_argument("--seed", type=_non_negative_int, default=0, help="simulation seed")

@@ -21,10 +21,12 @@ can split into pieces joined by a few long bonds or not at all; pieces without a
 freely (their energy is translation invariant) and the confinement still holds them in.
 
 Confinement: mobile cells must stay in the allowed region, the mould polygon minus the tether
-disks, 0 <= z <= depth. Its signed distance phi(x, y) (> 0 inside, l0) is sampled on a grid of
-spacing `PHI_SPACING` and read by bilinear interpolation (exact for straight walls away from
-corners); the Metropolis kernel rejects a move to phi < 0 and the minimiser uses a stiff
-quadratic wall on -phi.
+disks, 0 <= z <= depth. Its signed distance (> 0 inside, l0) is the smaller of two parts:
+the polygon's, sampled on a grid of spacing `PHI_SPACING` and read by bilinear interpolation
+(exact for straight walls away from corners), and each post's, |(x, y) - centre| - radius,
+computed exactly (a sampled circle would be faceted, and a cell pressed on a facet edge could
+never balance its force). The Metropolis kernel rejects a move outside; the minimisers treat
+the region as a hard constraint (`condor.walls`) or a stiff wall (FIRE).
 """
 
 from __future__ import annotations
@@ -74,13 +76,16 @@ class Region:
     phi_x0: float  # x of node column 0, l0
     phi_y0: float  # y of node row 0, l0
     phi_h: float  # node spacing, l0
+    posts: np.ndarray  # (k, 3) tether disks x, y, radius that cells stay out of, l0
 
     def signed_distance(self, xy: np.ndarray) -> np.ndarray:
-        """phi at points xy (n, 2) by bilinear interpolation, l0 (> 0 inside)."""
+        """Signed distance at points xy (n, 2), l0 (> 0 inside): min of the polygon's
+        (bilinear on the grid) and the posts' (exact)."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         out = np.empty(len(xy))
         for n in range(len(xy)):
-            out[n] = phi_at(self.phi, self.phi_x0, self.phi_y0, self.phi_h, xy[n, 0], xy[n, 1])
+            out[n] = region_distance(self.phi, self.phi_x0, self.phi_y0, self.phi_h, self.posts,
+                                     xy[n, 0], xy[n, 1])
         return out
 
     def violation(self, positions: np.ndarray) -> np.ndarray:
@@ -268,7 +273,7 @@ def signed_volumes(positions: np.ndarray, tets: np.ndarray) -> np.ndarray:
 
 
 def build_region(polygon: Polygon, tethers: np.ndarray, depth: float) -> Region:
-    """Signed-distance grid of the allowed region (polygon minus tether disks), l0."""
+    """Signed-distance grid of the polygon and the post disks of the allowed region, l0."""
     xmin, ymin, xmax, ymax = polygon.bounds
     h = PHI_SPACING
     x0, y0 = xmin - PHI_PAD, ymin - PHI_PAD
@@ -281,9 +286,9 @@ def build_region(polygon: Polygon, tethers: np.ndarray, depth: float) -> Region:
     xx, yy = np.meshgrid(gx, gy)
     inside = shapely.contains_xy(polygon, xx, yy)
     phi = np.where(inside, dist, -dist)
-    for tx, ty, radius in tethers:
-        phi = np.minimum(phi, np.hypot(xx - tx, yy - ty) - radius)
-    return Region(depth=depth, phi=np.ascontiguousarray(phi), phi_x0=x0, phi_y0=y0, phi_h=h)
+    posts = np.ascontiguousarray(np.asarray(tethers, dtype=np.float64).reshape(-1, 3))
+    return Region(depth=depth, phi=np.ascontiguousarray(phi), phi_x0=x0, phi_y0=y0, phi_h=h,
+                  posts=posts)
 
 
 def _ring_segments(polygon: Polygon) -> np.ndarray:
@@ -355,4 +360,35 @@ def phi_grad_at(phi, x0, y0, h, x, y):
     val = (1 - tx) * (1 - ty) * p00 + tx * (1 - ty) * p10 + (1 - tx) * ty * p01 + tx * ty * p11
     gx = ((1 - ty) * (p10 - p00) + ty * (p11 - p01)) / h
     gy = ((1 - tx) * (p01 - p00) + tx * (p11 - p10)) / h
+    return val, gx, gy
+
+
+@numba.njit(cache=True)
+def region_distance(phi, x0, y0, h, posts, x, y):
+    """Signed distance to the allowed region in the plane, l0 (> 0 inside): the smaller of the
+    polygon's (bilinear) and each post's |(x, y) - centre| - radius (exact)."""
+    val = phi_at(phi, x0, y0, h, x, y)
+    for k in range(posts.shape[0]):
+        dx = x - posts[k, 0]
+        dy = y - posts[k, 1]
+        val = min(val, math.sqrt(dx * dx + dy * dy) - posts[k, 2])
+    return val
+
+
+@numba.njit(cache=True)
+def region_distance_grad(phi, x0, y0, h, posts, x, y):
+    """region_distance and the gradient of its smallest part (val, d/dx, d/dy)."""
+    val, gx, gy = phi_grad_at(phi, x0, y0, h, x, y)
+    for k in range(posts.shape[0]):
+        dx = x - posts[k, 0]
+        dy = y - posts[k, 1]
+        r = math.sqrt(dx * dx + dy * dy)
+        if r - posts[k, 2] < val:
+            val = r - posts[k, 2]
+            if r > 0.0:
+                gx = dx / r
+                gy = dy / r
+            else:
+                gx = 1.0
+                gy = 0.0
     return val, gx, gy

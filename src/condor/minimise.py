@@ -25,7 +25,7 @@ import numba
 import numpy as np
 
 from condor.energy import DELTA, energy_gradient
-from condor.lattice import phi_grad_at
+from condor.lattice import region_distance_grad
 
 K_WALL = 50.0  # kappa0, wall stiffness
 FTOL = 1.0e-3  # kappa0 l0, default force tolerance (energy within ~0.01% of the minimum)
@@ -41,12 +41,12 @@ ALPHA_MIN = 0.02  # the floor that keeps FIRE damped
 
 
 @numba.njit(cache=True)
-def wall_energy_gradient(pos, mobile, phi, x0, y0, h, depth, k_wall, grad_pos):
+def wall_energy_gradient(pos, mobile, phi, x0, y0, h, posts, depth, k_wall, grad_pos):
     """Add the wall gradient of mobile cells to grad_pos; return the wall energy."""
     e = 0.0
     for m in range(len(mobile)):
         c = mobile[m]
-        val, gx, gy = phi_grad_at(phi, x0, y0, h, pos[c, 0], pos[c, 1])
+        val, gx, gy = region_distance_grad(phi, x0, y0, h, posts, pos[c, 0], pos[c, 1])
         if val < 0.0:
             e += 0.5 * k_wall * val * val
             grad_pos[c, 0] += k_wall * val * gx  # d/dx (k/2) phi^2 = k phi dphi/dx
@@ -63,11 +63,11 @@ def wall_energy_gradient(pos, mobile, phi, x0, y0, h, depth, k_wall, grad_pos):
 
 
 @numba.njit(cache=True)
-def _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h, depth,
+def _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h, posts, depth,
             k_wall, grad_pos, grad_ori, f_pos, f_ori):
     """Fill f_pos, f_ori (mobile rows only) with -gradient; return (E_bonds, E_wall, fmax)."""
     e = energy_gradient(pos, ori, bond_i, bond_j, kbar, rest, delta, grad_pos, grad_ori)
-    ew = wall_energy_gradient(pos, mobile, phi, x0, y0, h, depth, k_wall, grad_pos)
+    ew = wall_energy_gradient(pos, mobile, phi, x0, y0, h, posts, depth, k_wall, grad_pos)
     fmax2 = 0.0
     for m in range(len(mobile)):
         c = mobile[m]
@@ -84,8 +84,8 @@ def _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h,
 
 
 @numba.njit(cache=True)
-def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h, depth,
-                k_wall, max_iter, ftol, alpha_min, dt_max, trace):
+def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0, h, posts,
+                depth, k_wall, max_iter, ftol, alpha_min, dt_max, trace):
     """FIRE in place on pos, ori. Returns (E_bonds, E_wall, max force, evaluations).
 
     trace (K, 2): bond energy and max force of evaluation k for k < K (K = 0: no trace).
@@ -105,7 +105,7 @@ def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0
     it = 0
     while True:
         e, ew, fmax = _forces(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0,
-                              y0, h, depth, k_wall, grad_pos, grad_ori, f_pos, f_ori)
+                              y0, h, posts, depth, k_wall, grad_pos, grad_ori, f_pos, f_ori)
         if it < trace.shape[0]:
             trace[it, 0] = e
             trace[it, 1] = fmax
@@ -155,14 +155,14 @@ def fire_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y0
 
 
 @numba.njit(cache=True)
-def project_inside(pos, mobile, phi, x0, y0, h, depth):
+def project_inside(pos, mobile, phi, x0, y0, h, posts, depth):
     """Move mobile cells that lie outside back onto the region; return the largest move, l0."""
     worst = 0.0
     for m in range(len(mobile)):
         c = mobile[m]
         moved = 0.0
         for _ in range(20):  # Newton steps along grad phi: phi is near-linear close to a wall
-            val, gx, gy = phi_grad_at(phi, x0, y0, h, pos[c, 0], pos[c, 1])
+            val, gx, gy = region_distance_grad(phi, x0, y0, h, posts, pos[c, 0], pos[c, 1])
             if val >= 0.0:
                 break
             g2 = gx * gx + gy * gy
@@ -199,11 +199,11 @@ def minimise(lattice, positions, orientations, max_iter: int = MAX_ITER, ftol: f
     r = lattice.region
     e, ew, fmax, iters = fire_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
-        delta, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.depth, float(k_wall), int(max_iter),
+        delta, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.posts, r.depth, float(k_wall), int(max_iter),
         float(ftol), float(alpha_min), float(dt_max),
         np.zeros((0, 2)) if trace is None else trace,
     )
-    penetration = float(project_inside(pos, mobile, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.depth))
+    penetration = float(project_inside(pos, mobile, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.posts, r.depth))
     info = {
         "min_iterations": int(iters),
         "min_max_force": float(fmax),

@@ -2,16 +2,27 @@
 
 `simulate(polygon, tethers, depth, solver, budget, seed)` builds the FCC lattice, draws
 isotropic random orientations, runs a solver and checks the result. Solvers and the meaning
-and default of `budget`:
+and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
 
+  * "lbfgs" (the default, DEFAULT_SOLVER): L-BFGS with exact walls (`condor.lbfgs`) from the
+                lattice; budget = energy+gradient evaluations; ftol = largest residual force.
   * "anneal":   the paper's Metropolis annealing; budget = moves per mobile cell
-                (default DEFAULT_BUDGET["anneal"]; the paper's is 1e6).
-  * "minimise": FIRE from the lattice; budget = energy+gradient evaluations.
+                (the paper's is 1e6).
+  * "minimise": FIRE (soft walls, then projected inside) from the lattice; budget =
+                energy+gradient evaluations.
   * "hybrid":   a short anneal (budget = its moves per cell) that lets orientations find
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
 
-`ftol` (default minimise.FTOL) is FIRE's force tolerance. `simulate_lattice` runs a solver
-from a given start state (used by condor.stability and condor.tradeoff).
+`simulate_lattice` runs a solver from a given start state (used by condor.stability and
+condor.tradeoff).
+
+Cost in machine-independent units: info["evaluations"] counts energy+gradient
+evaluation-equivalents of the whole solve. A minimiser's evaluation is one; an anneal counts
+the bond energies its trials evaluated over the bonds of one evaluation
+(`anneal_evaluations`; measured: a Metropolis trial costs about what its bonds cost in an
+evaluation, docs/model.md). info["max_force"] is the largest residual force of the final state
+(`condor.walls.residual_forces`: projected on walls and posts, tangent for orientations,
+kappa0 l0), whatever the solver.
 
 It raises ValueError for bad input only (including a non-finite start state or bonded cells
 at the same point, which have no bond direction). A failed simulation returns a result whose
@@ -36,13 +47,18 @@ from pathlib import Path
 import numpy as np
 
 from condor import anneal as anneal_mod
+from condor import lbfgs as lbfgs_mod
 from condor import minimise as minimise_mod
 from condor.energy import DELTA, cell_tension, lattice_energy, random_orientations
 from condor.lattice import Lattice, build_lattice, signed_volumes
+from condor.walls import residual_forces
 
-SOLVERS = ("anneal", "minimise", "hybrid")
-DEFAULT_SOLVER = "hybrid"
-DEFAULT_BUDGET = {"anneal": 1.0e3, "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0}
+SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid")
+DEFAULT_SOLVER = "lbfgs"
+DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
+                  "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0}
+DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
+                "hybrid": minimise_mod.FTOL}
 ESCAPE_TOL = 0.25  # l0
 FOLD_FRACTION = 0.01  # of tetrahedra
 COLLAPSE_LENGTH = 0.35  # l0, nearest-neighbour bonds
@@ -119,6 +135,8 @@ def warm_up() -> None:
     ori = random_orientations(lattice.n_cells, np.random.default_rng(0))
     anneal_mod.anneal(lattice, lattice.positions, ori, 1, [0])
     minimise_mod.minimise(lattice, lattice.positions, ori, max_iter=2)
+    lbfgs_mod.minimise_lbfgs(lattice, lattice.positions, ori, max_iter=3, ftol=1e-3)
+    residual_forces(lattice, lattice.positions, ori)
     cell_tension(lattice.positions, ori, lattice.bond_i, lattice.bond_j, lattice.bond_kbar,
                  lattice.bond_rest, DELTA)
     _WARM = True
@@ -128,7 +146,8 @@ def simulate(polygon, tethers, depth: float, solver: str | None = DEFAULT_SOLVER
              budget: float | None = None, seed: int = 0, ftol: float | None = None) -> SimResult:
     """Simulate one mould (polygon and tethers (n, 3) x, y, radius in l0; depth in l0).
 
-    ftol: the minimiser's force tolerance, kappa0 l0 (None: minimise.FTOL); ignored by "anneal".
+    ftol: the minimiser's force tolerance, kappa0 l0 (None: DEFAULT_FTOL[solver]); ignored by
+    "anneal".
     solver None: DEFAULT_SOLVER.
     """
     solver = solver or DEFAULT_SOLVER
@@ -173,12 +192,18 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | No
     t0 = time.process_time()
     try:
         pos, ori, info = _solve(lattice, pos0, ori0, solver, used_budget, seed,
-                                minimise_mod.FTOL if ftol is None else float(ftol))
+                                DEFAULT_FTOL[solver] if ftol is None else float(ftol))
     except ZeroDivisionError:  # numba's 1/|l| on a bond that collapsed to zero length
         pos, ori, info = np.full_like(pos0, np.nan), ori0, {"error": "zero-length bond"}
     seconds = time.process_time() - t0
 
+    info["evaluations"] = float(info.get("anneal_evaluations", 0.0)
+                                + info.get("min_evaluations", info.get("min_iterations", 0)))
     energy = lattice_energy(lattice, pos, ori)
+    if np.all(np.isfinite(pos)) and np.all(np.isfinite(ori)):
+        info["max_force"] = float(residual_forces(lattice, pos, ori).max(initial=0.0))
+    else:
+        info["max_force"] = float("nan")
     tension = cell_tension(pos, ori, lattice.bond_i, lattice.bond_j, lattice.bond_kbar,
                            lattice.bond_rest, DELTA)
     checks = diagnose(lattice, pos, ori, energy, start_energy, info)
@@ -210,7 +235,11 @@ def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ft
     if solver in ("anneal", "hybrid"):
         pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2])
         info.update(info_a)
-    if solver == "minimise":
+    if solver == "lbfgs":
+        pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori,
+                                                    max_iter=max(int(budget), 1), ftol=ftol)
+        info.update(info_m)
+    elif solver == "minimise":
         pos, ori, info_m = minimise_mod.minimise(lattice, pos, ori, max_iter=max(int(budget), 1),
                                                  ftol=ftol)
         info.update(info_m)

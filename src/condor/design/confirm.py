@@ -138,7 +138,7 @@ def _simulate_one(task):
 
 def simulate_designs(objective: Objective, moulds: list[Mould], scene, replicas: int = 3,
                      seed: int = 0, seeds: list[list[int]] | None = None,
-                     solver: str = "hybrid", budget: float | None = None, map_fn=map,
+                     solver: str | None = None, budget: float | None = None, map_fn=map,
                      progress: bool | None = None) -> SimulatedDesigns:
     """Simulate every mould `replicas` times and score the replica-mean normalised fields.
 
@@ -347,7 +347,7 @@ class Confirmation:
 
 def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
             replicas: int = 3, baseline: pd.DataFrame | None = None,
-            solver: str = "hybrid", budget: float | None = None, seed: int | None = None,
+            solver: str | None = None, budget: float | None = None, seed: int | None = None,
             map_fn=map, progress: bool | None = None) -> Confirmation:
     """select_for_confirmation + simulate_designs + confirmation_table + design_summary.
 
