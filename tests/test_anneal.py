@@ -4,7 +4,10 @@ import numpy as np
 import pytest
 from shapely.geometry import box
 
-from condor.anneal import anneal, neighbour_lists, trial_energy_change
+from condor.anneal import (
+    INIT_AMP_ORI, INIT_AMP_POS, MAX_STEP_ORI, T_INIT, TARGET_ACCEPT, anneal, anneal_kernel,
+    neighbour_lists, trial_energy_change,
+)
 from condor.energy import DELTA, bond_energies, random_orientations, total_energy
 from condor.lattice import build_lattice
 
@@ -93,3 +96,42 @@ def test_metropolis_samples_boltzmann_at_fixed_temperature():
     k_xx = (e(h) - 2 * e(0) + e(-h)) / h**2
     var = np.var(samples[:, 0] - lat.positions[cell, 0])
     assert var == pytest.approx(1e-4 / k_xx, rel=0.5)  # 40 samples: ~22% standard error
+
+
+def _kernel_run(lat, pos, ori, sweeps, temp, amp, seed):
+    """Run anneal_kernel in place for `sweeps` sweeps at fixed temperature `temp`."""
+    mobile = np.flatnonzero(~lat.fixed).astype(np.int64)
+    r = lat.region
+    _, _, acc_ori, _, _ = anneal_kernel(
+        pos, ori, mobile, lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, lat.cell_ptr,
+        lat.cell_bonds, *neighbour_lists(lat), DELTA, r.phi, r.phi_x0, r.phi_y0, r.phi_h,
+        r.posts, r.depth, sweeps * len(mobile), temp, 1.0, seed, amp)
+    return acc_ori / (sweeps * len(mobile) / 2)
+
+
+def test_step_amplitude_does_not_wind_up_at_its_cap():
+    """Hot: the orientation acceptance exceeds the target even at the step cap ds = 1, so the
+    amplitude rises; it must stop at the cap (1 / sqrt(T)), or it needs as many cold sweeps to
+    come back down, during which ds = 1 is almost always rejected."""
+    lat = build_lattice(box(0, 0, 4, 3), np.array([[1.0, 1.5, 0.6]]), 1.5)
+    pos = lat.positions.copy()
+    ori = random_orientations(lat.n_cells, np.random.default_rng([0, 3]))
+    amp = np.array([INIT_AMP_POS, INIT_AMP_ORI])
+    hot, cold = T_INIT, T_INIT * 1e-3
+    assert _kernel_run(lat, pos, ori, 200, hot, amp, 11) > TARGET_ACCEPT  # the cap binds
+    assert amp[1] * np.sqrt(hot) <= MAX_STEP_ORI * (1 + 1e-12)
+    # Cold: the step must shrink to the acceptance target within a few sweeps.
+    _kernel_run(lat, pos, ori, 20, cold, amp, 12)
+    assert amp[1] * np.sqrt(cold) < 0.5 * MAX_STEP_ORI
+    assert _kernel_run(lat, pos, ori, 50, cold, amp, 13) == pytest.approx(TARGET_ACCEPT, abs=0.1)
+
+
+def test_long_anneal_keeps_adapting_its_orientation_step():
+    """Regression: beyond ~4e4 moves per cell the wound-up amplitude overflowed to inf, which
+    froze ds at its cap and the orientation acceptance at ~0 for the rest of the anneal."""
+    lat = build_lattice(box(0, 0, 4, 3), np.array([[1.0, 1.5, 0.6]]), 1.5)
+    ori = random_orientations(lat.n_cells, np.random.default_rng([0, 3]))
+    _, _, info = anneal(lat, lat.positions, ori, 6e4, [1, 0])
+    # The target is met in every sweep but the hot start (acceptance > 40% at the cap).
+    assert info["anneal_accept_ori"] == pytest.approx(TARGET_ACCEPT, abs=0.06)
+    assert info["anneal_final_step_ori"] < 0.01 * MAX_STEP_ORI

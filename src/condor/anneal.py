@@ -15,9 +15,15 @@ penalty, so it is rejected outright without evaluating the energy.
 Step-size adaptation: dr = a_r sqrt(T) and ds = a_s sqrt(T) follow the cooling (thermal
 fluctuations scale as sqrt(T) in a harmonic well); after every sweep (n_mobile trials) each
 amplitude a is multiplied by 1.2 if that move type's acceptance exceeded 40% and divided by
-1.2 otherwise, with dr <= 0.5 l0 and ds <= 1. A trial is O(1): it recomputes only the bonds of
-the moved cell through per-cell bond lists that hold each bond's other cell, rest length, kbar
-and cached energy contiguously (`neighbour_lists`; an accepted move updates both copies).
+1.2 otherwise, with dr <= 0.5 l0 and ds <= 1. An amplitude is clamped to the one that meets
+its cap at the current T: without the clamp, the orientation amplitude grew by 1.2 per sweep
+while ds sat at its cap in the hot phase (acceptance > 40% even at ds = 1 above T ~ 0.01),
+then needed as many sweeps to come back, and overflowed to inf beyond 4-5e4 moves per cell,
+which left ds = 1 and the orientations frozen for the rest of the anneal.
+
+A trial is O(1): it recomputes only the bonds of the moved cell through per-cell bond lists
+that hold each bond's other cell, rest length, kbar and cached energy contiguously
+(`neighbour_lists`; an accepted move updates both copies).
 
 Randomness: a xorshift64* stream seeded from numpy.random.default_rng; deterministic.
 """
@@ -182,12 +188,17 @@ def anneal_kernel(
                 acc_ori_sweep += 1
         temp *= decay
         if (trial + 1) % n_mobile == 0:  # adapt once per sweep
+            # Anti-windup: an amplitude never grows past the one that reaches its step cap at
+            # the current temperature, so it can shrink as soon as the acceptance falls.
+            cap_scale = 1.0 / math.sqrt(temp) if temp > 0.0 else math.inf
             if tried_pos_sweep > 0:
                 up = acc_pos_sweep > TARGET_ACCEPT * tried_pos_sweep
                 amp[0] = amp[0] * ADAPT_FACTOR if up else amp[0] / ADAPT_FACTOR
+                amp[0] = min(amp[0], MAX_STEP_POS * cap_scale)
             if tried_ori_sweep > 0:
                 up = acc_ori_sweep > TARGET_ACCEPT * tried_ori_sweep
                 amp[1] = amp[1] * ADAPT_FACTOR if up else amp[1] / ADAPT_FACTOR
+                amp[1] = min(amp[1], MAX_STEP_ORI * cap_scale)
             tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
     return energy, acc_pos, acc_ori, n_outside, bonds_evaluated
 
@@ -212,8 +223,8 @@ def anneal(
     region = lattice.region
     energy, acc_pos, acc_ori, n_outside, bonds_evaluated = anneal_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
-        lattice.cell_ptr, lattice.cell_bonds, *neighbour_lists(lattice), delta, region.phi, region.phi_x0, region.phi_y0,
-        region.phi_h, region.posts, region.depth, n_trials, t_init, t_ratio, seed, amp,
+        lattice.cell_ptr, lattice.cell_bonds, *neighbour_lists(lattice), delta, region.phi,
+        region.phi_x0, region.phi_y0, region.phi_h, region.posts, region.depth, n_trials, t_init, t_ratio, seed, amp,
     )
     info = {
         "anneal_trials": n_trials,
@@ -224,5 +235,6 @@ def anneal(
         "anneal_evaluations": float(bonds_evaluated / max(lattice.n_bonds, 1)),
         "anneal_running_energy": float(energy),
         "anneal_final_step_pos": float(min(amp[0] * math.sqrt(t_init / t_ratio), MAX_STEP_POS)),
+        "anneal_final_step_ori": float(min(amp[1] * math.sqrt(t_init / t_ratio), MAX_STEP_ORI)),
     }
     return pos, ori, info
