@@ -14,7 +14,7 @@ and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
 
 `simulate_lattice` runs a solver from a given start state (used by condor.stability and
-condor.tradeoff).
+condor.studies).
 
 Cost in machine-independent units: info["evaluations"] counts energy+gradient
 evaluation-equivalents of the whole solve. A minimiser's evaluation is one; an anneal counts
