@@ -3,14 +3,17 @@
 For each mould, ensembles of replicas of
   * the paper's anneal at rising budgets (moves per cell; the paper's is 1e6), each followed by
     tight FIRE (`--ftol`, default 1e-5), so that every rung ends at a minimum, and
-  * the default solver ("hybrid" with its defaults),
-with the store's replica seeds (replica 0 = `pipeline.simulation_seed`, r >= 1 =
-default_rng([seed, mould, 1, r])): replica r of every method starts from the same random
-orientations. Each ensemble's mean normalised fields estimate its expected fields; the
-noise-corrected distance between two ensembles' means (`estimators.ensemble_distance`) is set
-against the spread of one simulation about its ensemble's mean (`estimators.noise_ceiling`),
-both as RMS over pixels and the 8 fields. An exact permutation test (the replicas of two
-ensembles pooled and re-split) says whether the distance is resolved beyond replica noise.
+  * the quench: solver "hybrid" with its defaults (a short anneal, then FIRE), the name the
+    stored tables in docs/data give it. It was the simulator's default when the ladder was
+    measured; the default is now `condor.simulate.DEFAULT_SOLVER` ("lbfgs"), which samples
+    the hybrid's ensemble (docs/model.md, "The same minimum?"),
+with the store's replica seeds (`condor.seeds.replica_seed`): replica r of every method
+starts from the same random orientations. Each ensemble's mean normalised fields estimate its
+expected fields; the noise-corrected distance between two ensembles' means
+(`estimators.ensemble_distance`) is set against the spread of one simulation about its
+ensemble's mean (`estimators.noise_ceiling`), both as RMS over pixels and the 8 fields. An
+exact permutation test (the replicas of two ensembles pooled and re-split) says whether the
+distance is resolved beyond replica noise.
 
 Outputs (small CSVs under --out, default docs/data; the suffix is the scene and --tag):
   anneal_ladder_runs_<scene>.csv     one row per run: energies, diagnostics, seeds
@@ -56,8 +59,8 @@ from condor.fields import FIELD_NAMES, cell_fields, normalise  # noqa: E402
 from condor.lattice import build_lattice, signed_volumes  # noqa: E402
 from condor.minimise import minimise  # noqa: E402
 from condor.moulds import generate_mould  # noqa: E402
-from condor.pipeline import simulation_seed  # noqa: E402
 from condor.scenes import get_scene  # noqa: E402
+from condor.seeds import replica_seed  # noqa: E402
 from condor.simulate import SimResult, diagnose, simulate, simulate_lattice, warm_up  # noqa: E402
 
 DATASET_SEED = 2026  # the default config's global seed: moulds 7, 12, 15, 47 are test moulds
@@ -65,19 +68,12 @@ HYBRID = "hybrid"
 P_RESOLVED = 0.05  # a distance is resolved beyond replica noise below this permutation p
 
 
-def replica_seed(mould_id: int, replica: int, seed: int = DATASET_SEED) -> int:
-    """The store's seeding convention for replica `replica` of mould `mould_id`."""
-    if replica == 0:
-        return simulation_seed(seed, mould_id)
-    return int(np.random.default_rng([seed, mould_id, 1, replica]).integers(2**62))
-
-
 @dataclass(frozen=True)
 class Method:
-    """One ensemble's recipe. budget None: the default solver (hybrid), with FIRE to `ftol`
-    (None: its default); else the paper's anneal of `budget` moves per cell, over the
-    temperatures `window` = (T_hi, T_lo) if given (else T_INIT to T_INIT / T_RATIO), then
-    tight FIRE."""
+    """One ensemble's recipe. budget None: the hybrid solver (the default before L-BFGS, not
+    the current DEFAULT_SOLVER), with FIRE to `ftol` (None: its default); else the paper's
+    anneal of `budget` moves per cell, over the temperatures `window` = (T_hi, T_lo) if given
+    (else T_INIT to T_INIT / T_RATIO), then tight FIRE."""
 
     budget: float | None = None
     window: tuple[float, float] | None = None
@@ -132,7 +128,7 @@ def run_one(scene, mould_id: int, method: Method, replica: int, ftol: float,
     """One replica of one method: (row, normalised fields (8, H, W) float32). ftol and
     max_iter: the FIRE that follows an anneal."""
     mould = generate_mould(DATASET_SEED, mould_id, box=scene.box)
-    seed = replica_seed(mould_id, replica)
+    seed = replica_seed(DATASET_SEED, mould_id, replica)
     budget, window = method.budget, method.window
     row = {"scene": scene.name, "mould": mould_id, "method": method.name,
            "budget": budget, "replica": replica, "seed": seed,
@@ -356,7 +352,7 @@ def trace(scene, mould_id: int, budget: float, segments: int, replica: int, ftol
     stream: the same schedule and adaptation as `anneal`, not bit-identical to it."""
     mould = generate_mould(DATASET_SEED, mould_id, box=scene.box)
     lattice = build_lattice(mould.polygon, mould.tethers, scene.depth)
-    seed = replica_seed(mould_id, replica)
+    seed = replica_seed(DATASET_SEED, mould_id, replica)
     pos = lattice.positions.copy()
     ori = random_orientations(lattice.n_cells, np.random.default_rng([seed, 1]))
     mobile = np.flatnonzero(~lattice.fixed).astype(np.int64)
@@ -364,17 +360,18 @@ def trace(scene, mould_id: int, budget: float, segments: int, replica: int, ftol
     ratio = anneal_mod.T_RATIO ** (1.0 / segments)
     amp = np.array([anneal_mod.INIT_AMP_POS, anneal_mod.INIT_AMP_ORI])
     region = lattice.region
+    neighbours = anneal_mod.neighbour_lists(lattice)  # the per-cell bond lists anneal() builds
     temp = anneal_mod.T_INIT
     rows = []
     nn = lattice.bond_shell == 0
     for k in range(segments):
         stream = int(np.random.default_rng([seed, 2, k]).integers(1, 2**63 - 1))
         n_trials = sweeps * len(mobile)
-        energy, acc_pos, acc_ori, _ = anneal_mod.anneal_kernel(
+        energy, acc_pos, acc_ori, _, _ = anneal_mod.anneal_kernel(
             pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar,
-            lattice.bond_rest, lattice.cell_ptr, lattice.cell_bonds, DELTA, region.phi,
-            region.phi_x0, region.phi_y0, region.phi_h, region.depth, n_trials, temp, ratio,
-            stream, amp)
+            lattice.bond_rest, lattice.cell_ptr, lattice.cell_bonds, *neighbours, DELTA,
+            region.phi, region.phi_x0, region.phi_y0, region.phi_h, region.posts, region.depth,
+            n_trials, temp, ratio, stream, amp)
         temp /= ratio
         quench_pos, quench_ori, quench = minimise(lattice, pos, ori, ftol=ftol,
                                                   max_iter=max_iter)
@@ -420,10 +417,10 @@ def verdict(summary: pd.DataFrame, fields_table: pd.DataFrame, reference: str) -
     if not ref.empty:
         lines.append(f"Spread within the reference ensemble: {ref.iloc[0]['spread']:.4f}.")
     if a["p_ref"] >= P_RESOLVED:
-        lines.append("Verdict: the default solver samples the reference ensemble within the "
+        lines.append("Verdict: the hybrid solver samples the reference ensemble within the "
                      "resolution of these replicas.")
     else:
-        lines.append("Verdict: the default solver's expected fields differ from the "
+        lines.append("Verdict: the hybrid solver's expected fields differ from the "
                      "reference's beyond replica noise. Per field (RMS distance / spread of "
                      "one reference simulation, mean difference hybrid - reference):")
         hyb = fields_table[fields_table["method"] == HYBRID]
