@@ -1,9 +1,9 @@
 """Do two solvers reach the same minimum? Cost, energy and expected fields over an ensemble.
 
 Each solver runs moulds 0..M-1 of dataset seed S (condor.moulds.generate_mould(S, i, scene box))
-with R replicas each, seeded as the store will seed them (replica 0: the dataset's
-simulation seed; r >= 1: default_rng([S, i, 1, r])). Per solver it prints: evaluation-
-equivalents (median, max; info["evaluations"]), CPU seconds, the largest residual force, and
+with R replicas each, seeded as the store seeds them (condor.seeds.replica_seed; replica 0 is
+the dataset's own sample). Per solver it prints: evaluation-equivalents (median, max;
+info["evaluations"]), CPU seconds, the largest residual force, and
 against the reference solver (the first one): the median over runs of E/cell over the
 reference's mean E/cell of the same mould, minus 1, and per mould the ratio of the two
 ensembles' mean E/cell minus 1 (its median over moulds, with a bootstrap interval),
@@ -33,16 +33,12 @@ from pathlib import Path
 import numpy as np
 
 from condor import estimators
+from condor.fields import normalise
 from condor.moulds import generate_mould
 from condor.scenes import get_scene
+from condor.seeds import replica_seed
 from condor.simulate import simulate
-from condor.tradeoff import normalised_fields
-
-
-def replica_seed(dataset_seed: int, mould_id: int, replica: int) -> int:
-    """The store's replica seeding (replica 0 = condor.pipeline.simulation_seed)."""
-    key = [dataset_seed, mould_id, 1] if replica == 0 else [dataset_seed, mould_id, 1, replica]
-    return int(np.random.default_rng(key).integers(2**62))
+from condor.stages.dataset import rasterise_result
 
 
 def parse_solver(spec: str) -> tuple[str, float | None, float | None]:
@@ -77,7 +73,7 @@ def run_ensemble(spec: str, scene, dataset_seed: int, moulds: int, replicas: int
                 t0 = time.process_time()
                 res = simulate(mould.polygon, mould.tethers, scene.depth, solver, budget,
                                replica_seed(dataset_seed, i, r), ftol)
-                f = normalised_fields(res, scene.box, scene.pixels, scene.sigma)
+                f = normalise(rasterise_result(res, scene).astype(np.float64), res.n_cells)
                 np.savez(path, energy_per_cell=res.energy_per_cell,
                          evaluations=res.info["evaluations"], seconds=res.seconds,
                          max_force=res.info["max_force"], status=res.status,

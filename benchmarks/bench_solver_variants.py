@@ -1,8 +1,8 @@
 """Solver variants side by side: evaluations to reach a force tolerance, and the energy there.
 
 Every variant starts from the same state as `simulate` (the lattice, isotropic random
-orientations of replica seeds as in bench_solver_ensemble) and runs to --ftol; its trace
-(energy and largest residual force per evaluation) gives, for each tolerance in --report, the
+orientations of the store's replica seeds, condor.seeds.replica_seed) and runs to --ftol; its
+trace (energy and largest residual force per evaluation) gives, for each tolerance in --report, the
 evaluation-equivalents spent when the largest residual force first fell below it and the
 energy per cell there (what a run with that ftol returns). Energies are compared with the
 reference ensemble of bench_solver_ensemble when its cache holds the mould (--reference, the
@@ -41,6 +41,7 @@ from condor.lbfgs import minimise_lbfgs
 from condor.minimise import minimise
 from condor.moulds import generate_mould
 from condor.scenes import get_scene
+from condor.seeds import replica_seed
 from condor.walls import FLOOR, LID, PINNED, SLIDE, place, project_state
 from condor.lbfgs import _gradients
 
@@ -217,7 +218,6 @@ def main() -> None:
     parser.add_argument("--reference", type=Path,
                         default=Path("results/benchmarks/solver_ensemble/hybrid_ftol0.0001"))
     args = parser.parse_args()
-    from bench_solver_ensemble import replica_seed
 
     scene = get_scene(args.scene)
     rows = {v: [] for v in args.variants}
