@@ -1,10 +1,12 @@
 """Replicas of a dataset's test moulds, for measuring the surrogate against the expected fields.
 
-Replica r of mould i (global seed S) is simulated with seed `condor.pipeline.simulation_seed(S, i)`
-for r = 0 (the dataset's own sample) and `default_rng([S, i, 1, r]).integers(2**62)` for r >= 1,
-the store's replica convention. Writes an .npz with `mould_ids` (M,), `fields` (M, R, 8, H, W)
-float32 (replica 0 from the store), `n_cells` (M,), `seeds` (M, R), `energy` (M, R) total energies.
-Resumable: finished moulds are kept in a per-mould cache beside the output.
+Replica r of mould i (global seed S) is simulated with seed `condor.seeds.replica_seed(S, i, r)`,
+the store's replica convention (r = 0 is the dataset's own sample), by the store's solver and
+budget unless --solver names another. (A store built with `simulation.replicas.test` > 1
+already holds its test moulds' replicas and their mean, `fields_mean`.) Writes an .npz with
+`mould_ids` (M,), `fields` (M, R, 8, H, W) float32 (replica 0 from the store), `n_cells` (M,),
+`seeds` (M, R), `energy` (M, R) total energies. Resumable: finished moulds are kept in a
+per-mould cache beside the output.
 
     PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --replicas 8 \
         --out /work/data/surrogate/replicas.npz
@@ -18,17 +20,11 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.moulds import MouldParams, generate_mould
-from condor.pipeline import rasterise_result, simulation_seed
+from condor.dataset import open_dataset
+from condor.moulds import MouldParams
 from condor.scenes import Scene
-from condor.simulate import simulate
-from condor.store import open_dataset
-
-
-def replica_seed(seed: int, mould_id: int, replica: int) -> int:
-    if replica == 0:
-        return simulation_seed(seed, mould_id)
-    return int(np.random.default_rng([seed, mould_id, 1, replica]).integers(2 ** 62))
+from condor.seeds import replica_seed
+from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
 
 
 def main() -> None:
@@ -36,7 +32,8 @@ def main() -> None:
     ap.add_argument("--store", required=True)
     ap.add_argument("--replicas", type=int, default=8)
     ap.add_argument("--split", default="test")
-    ap.add_argument("--solver", default="hybrid")
+    ap.add_argument("--solver", default=None,
+                    help="default: the store's solver and budget (replicas of its samples)")
     ap.add_argument("--out", required=True)
     args = ap.parse_args()
 
@@ -44,20 +41,23 @@ def main() -> None:
     scene = Scene(**ds.attrs["scene"])
     params = MouldParams(**ds.attrs["mould_params"])
     seed = int(ds.attrs["seed"])
-    ids = np.flatnonzero(np.asarray(ds["split"].values).astype(str) == args.split)
+    solver = args.solver or ds.attrs["solver"]
+    budget = ds.attrs["solver_budget"] if solver == ds.attrs["solver"] else None
+    # Replica 0 of each mould of the split: for these samples the sample index is the mould id.
+    ids = np.flatnonzero((np.asarray(ds["split"].values).astype(str) == args.split)
+                         & (np.asarray(ds["replica"].values) == 0))
     cache = Path(args.out).with_suffix("")
     cache.mkdir(parents=True, exist_ok=True)
     for k, mould_id in enumerate(ids):  # replicas 1.. need only the mould's geometry
         part = cache / f"{mould_id:06d}.npz"
         if part.exists():
             continue
-        mould = generate_mould(seed, int(mould_id), box=scene.box, params=params,
-                               area_fraction=scene.area_fraction, max_extent=scene.max_extent)
+        mould = make_mould(scene, seed, int(mould_id), params)
         fields, seeds, energies = [], [], []
         t0 = time.perf_counter()
         for r in range(1, args.replicas):
             s = replica_seed(seed, int(mould_id), r)
-            res = simulate(mould.polygon, mould.tethers, scene.depth, solver=args.solver, seed=s)
+            res = simulate_mould(mould, scene, solver, budget, s)
             if res.status != "ok":
                 raise RuntimeError(f"mould {mould_id} replica {r}: {res.status}")
             fields.append(rasterise_result(res, scene))
