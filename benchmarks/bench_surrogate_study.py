@@ -28,10 +28,10 @@ import numpy as np
 import pandas as pd
 import torch
 
+from condor.dataset import open_dataset
 from condor.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
                                root_mean, statistic_agreement)
 from condor.fields import mould_statistics
-from condor.store import open_dataset
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
 from condor.surrogate.checkpoint import load_checkpoint
@@ -45,29 +45,33 @@ STATISTICS = ("mean_P", "n_P_gt_0.2", "mean_T", "mean_T_norm", "mean_Sx2", "mean
 
 
 def study_dataset(store, replica_ids, n_train: int | None, val_ids=None):
-    """The store with splits relabelled: test = the replica moulds, val = `val_ids` (default:
-    the store's own val split), train = the store's other usable moulds (the first n_train
-    by id); everything else "unused"."""
+    """The store with splits relabelled by mould (every replica of a mould takes its label):
+    test = the replica moulds, val = `val_ids` (default: the store's own val split), train =
+    the store's other moulds whose replica 0 is usable (the first n_train by id); everything
+    else "unused"."""
     ds = open_dataset(store)
-    ids = np.asarray(ds["sample"].values)
+    mould = np.asarray(ds["mould"].values)
+    first = np.asarray(ds["replica"].values) == 0  # sample == mould for these
     split = np.asarray(ds["split"].values).astype(str)
     status = np.asarray(ds["status"].values).astype(str)
-    val = np.isin(ids, val_ids) if val_ids is not None else split == "val"
-    test = np.isin(ids, replica_ids)
-    pool = np.flatnonzero((status == "ok") & ~val & ~test)
+    val = np.isin(mould, val_ids) if val_ids is not None else split == "val"
+    test = np.isin(mould, replica_ids)
+    pool = mould[first & (status == "ok") & ~val & ~test]
     if n_train is not None:
         if n_train > len(pool):
             raise ValueError(f"--n-train {n_train} > {len(pool)} usable training moulds")
         pool = pool[:n_train]
-    labels = np.full(len(ids), "unused", dtype="<U8")
-    labels[pool], labels[val], labels[test] = "train", "val", "test"
+    labels = np.full(len(mould), "unused", dtype="<U8")
+    labels[np.isin(mould, pool)], labels[val], labels[test] = "train", "val", "test"
     return ds.assign(split=("sample", labels))
 
 
 def _test_ids(store) -> np.ndarray:
     """The test split's mould ids (the replica moulds, before the replicas exist)."""
     ds = open_dataset(store)
-    return np.asarray(ds["sample"].values)[np.asarray(ds["split"].values).astype(str) == "test"]
+    test = (np.asarray(ds["split"].values).astype(str) == "test") & \
+        (np.asarray(ds["replica"].values) == 0)
+    return np.asarray(ds["mould"].values)[test]
 
 
 def statistics_of(fields, pixel_size) -> np.ndarray:
@@ -195,7 +199,7 @@ def main() -> None:
     val_ids = None
     if args.val_store:
         vds = open_dataset(args.val_store)
-        val_ids = np.asarray(vds["sample"].values)[usable_samples(vds, "val")]
+        val_ids = np.asarray(vds["mould"].values)[usable_samples(vds, "val")]
     ds = study_dataset(args.store, replica_ids, args.n_train, val_ids)
     settings = {**json.loads(args.settings), "num_threads": args.threads}
     cfg = train_config(settings, int(ds.sizes["x"]))
