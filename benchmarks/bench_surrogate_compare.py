@@ -27,11 +27,10 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from condor.config import load_config
-from condor.store import open_dataset
-from condor.surrogate.checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
+from condor.config import Config
+from condor.dataset import open_dataset
 from condor.surrogate.data import usable_samples
-from condor.surrogate.predict import run_generator
+from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train
 from condor.surrogate.variants import train_config, workflow_variants
 
@@ -67,26 +66,30 @@ def train_timed(ds, cfg: TrainConfig, path: Path) -> tuple[float, float, list]:
     return cpu_seconds() - c0, time.perf_counter() - w0, history
 
 
+def predictor(path: Path) -> Predictor:
+    """The checkpoint on the CPU in eval mode, one network run per mould (no test-time
+    symmetrisation). A physics head takes each mould's cell count N_c (the store's n_cells)."""
+    return Predictor(path, device="cpu", mode="eval", symmetrise=False)
+
+
 def test_mae(path: Path, ds) -> float:
-    state = load_checkpoint(path)
-    model, scaling = generator_from_checkpoint(state, path), scaling_from_checkpoint(state)
     pos = usable_samples(ds, "test")
     inputs = ds["inputs"].values[pos].astype(np.float32)
-    pred = run_generator(model, scaling, inputs, "eval", device="cpu")
+    pred = predictor(path)(inputs, n_cells=ds["n_cells"].values[pos]).raw
     return float(np.abs(pred.astype(np.float64) - ds["fields"].values[pos]).mean())
 
 
-def seconds_per_mould(path: Path, inputs: np.ndarray, repeats: int) -> tuple[float, float]:
+def seconds_per_mould(path: Path, inputs: np.ndarray, n_cells: np.ndarray,
+                      repeats: int) -> tuple[float, float]:
     """Median wall and CPU seconds to predict one mould (batch 1, eval mode, resampling
     included)."""
-    state = load_checkpoint(path)
-    model, scaling = generator_from_checkpoint(state, path), scaling_from_checkpoint(state)
-    run_generator(model, scaling, inputs[:1], "eval", device="cpu")  # warm-up
+    model = predictor(path)
+    model(inputs[:1], n_cells=n_cells[:1])  # warm-up
     wall, cpu = [], []
     for r in range(repeats):
-        one = inputs[r % len(inputs)][None]
+        k = r % len(inputs)
         c0, t0 = cpu_seconds(), time.perf_counter()
-        run_generator(model, scaling, one, "eval", device="cpu")
+        model(inputs[k:k + 1], n_cells=n_cells[k:k + 1])
         wall.append(time.perf_counter() - t0)
         cpu.append(cpu_seconds() - c0)
     return statistics.median(wall), statistics.median(cpu)
@@ -107,7 +110,8 @@ def main():
     ds, n_train, n_test, source = benchmark_split(open_dataset(args.store).load(), args.n_train,
                                                   args.min_test)
     native = int(ds.sizes["x"])
-    name, settings = next(iter(workflow_variants(load_config(REPO / "config" / "config.yaml")).items()))
+    config = Config.load(REPO / "config" / "config.yaml")
+    name, settings = next(iter(workflow_variants(config).items()))
     print(f"store {args.store}: {native} px, {n_train} training moulds, {n_test} test moulds "
           f"({source}); torch {torch.__version__}, {args.threads} threads")
     work = Path(tempfile.mkdtemp(prefix="bench_compare_"))
@@ -130,10 +134,12 @@ def main():
         if epochs == args.paper_epochs:
             same_epochs_mae = test_mae(work / "variant.pt", ds)
 
-    inputs = ds["inputs"].values[usable_samples(ds, "test")].astype(np.float32)
+    test = usable_samples(ds, "test")
+    inputs = ds["inputs"].values[test].astype(np.float32)
+    n_cells = ds["n_cells"].values[test]
     paper_mae, variant_mae = test_mae(work / "paper.pt", ds), test_mae(work / "variant.pt", ds)
-    paper_s = seconds_per_mould(work / "paper.pt", inputs, args.repeats)
-    variant_s = seconds_per_mould(work / "variant.pt", inputs, args.repeats)
+    paper_s = seconds_per_mould(work / "paper.pt", inputs, n_cells, args.repeats)
+    variant_s = seconds_per_mould(work / "variant.pt", inputs, n_cells, args.repeats)
     print(f"\n{'model':28s} {'epochs':>6s} {'train CPU s':>11s} {'train wall s':>12s} "
           f"{'test MAE':>9s} {'s/mould':>9s} {'CPU s/mould':>11s}")
     rows = (("pix2pix 256px (paper)", args.paper_epochs, paper_cpu, paper_wall, paper_mae, paper_s),

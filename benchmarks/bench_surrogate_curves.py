@@ -28,7 +28,7 @@ from pathlib import Path
 
 import pandas as pd
 
-from condor.config import load_config
+from condor.config import Config
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
@@ -39,7 +39,8 @@ COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms"
 
 
 def default_settings(variant: str = "unet") -> dict:
-    return dict(load_config(REPO / "config" / "config.yaml")["surrogate"]["models"][variant])
+    # to_dict: plain (JSON-safe) values, as bench_surrogate_study.py --settings takes them
+    return Config.load(REPO / "config" / "config.yaml").to_dict()["surrogate"]["models"][variant]
 
 
 def study(name, settings, args, store, extra=()):
