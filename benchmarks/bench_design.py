@@ -7,7 +7,8 @@ For the scene of the checkpoint (or --scene without one), prints medians over --
   * with --checkpoint: a search scored by the real surrogate, with and without test-time
     symmetrisation (the checkpoint's setting is what `condor design` uses), at the torch
     thread counts in --threads (designs per minute, and the predictor's share of the time);
-  * with --simulate N: seconds per confirmation simulation (hybrid solver) of N designs.
+  * with --simulate N: seconds per confirmation simulation of N designs (the simulator's
+    default solver, condor.simulate.DEFAULT_SOLVER, as design confirmation uses).
 
     python benchmarks/bench_design.py --checkpoint model.pt --budget 600 --threads 1 2
 """
@@ -114,7 +115,7 @@ def main():
                       f"{100 * share:.0f}% of the wall time in the predictor")
 
     if args.simulate:
-        from condor.simulate import simulate, warm_up
+        from condor.simulate import DEFAULT_SOLVER, simulate, warm_up
 
         warm_up()
         seconds, cpu = [], []
@@ -124,7 +125,8 @@ def main():
             simulate(mould.polygon, mould.tethers, scene.depth, seed=0)
             seconds.append(time.perf_counter() - start)
             cpu.append(time.process_time() - cpu_start)
-        print(f"confirmation simulation (hybrid): {statistics.median(seconds):.2f} s wall, "
+        print(f"confirmation simulation ({DEFAULT_SOLVER}): "
+              f"{statistics.median(seconds):.2f} s wall, "
               f"{statistics.median(cpu):.2f} s CPU per replica (median of {len(seconds)})")
 
 
