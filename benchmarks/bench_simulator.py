@@ -35,6 +35,7 @@ from condor.lattice import build_lattice
 from condor.lbfgs import minimise_lbfgs
 from condor.moulds import generate_mould
 from condor.scenes import PAPER_BOX, get_scene
+from condor.seeds import replica_seed
 from condor.simulate import DEFAULT_SOLVER, simulate, warm_up
 
 
@@ -87,7 +88,7 @@ def kernels() -> dict:
 def solve_costs(scene_name: str, seed: int, solvers) -> list[dict]:
     scene = get_scene(scene_name)
     mould = generate_mould(seed, 0, scene.box)
-    sim_seed = int(np.random.default_rng([seed, 0, 1]).integers(2**62))
+    sim_seed = replica_seed(seed, 0, 0)
     rows = []
     for solver in solvers:
         r = simulate(mould.polygon, mould.tethers, scene.depth, solver, seed=sim_seed)
@@ -104,7 +105,7 @@ def lbfgs_convergence(scene_name: str, seed: int) -> dict:
     scene = get_scene(scene_name)
     mould = generate_mould(seed, 0, scene.box)
     lat = build_lattice(mould.polygon, mould.tethers, scene.depth)
-    sim_seed = int(np.random.default_rng([seed, 0, 1]).integers(2**62))
+    sim_seed = replica_seed(seed, 0, 0)
     ori = random_orientations(lat.n_cells, np.random.default_rng([sim_seed, 1]))
     trace = np.full((20000, 2), np.nan)
     _, _, info = minimise_lbfgs(lat, lat.positions, ori, 20000, 1e-5, trace=trace)
