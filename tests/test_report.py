@@ -138,7 +138,7 @@ def fake_inputs(tmp_path):
                   "coverage_90_hi": [0.93], "spread_r": [0.4], "spread_ratio": [1.4],
                   "spread_pixel_r": [0.5]}).to_csv(d / "calibration.csv", index=False)
     statistics_table().to_csv(d / "statistics.csv", index=False)
-    pd.DataFrame({"mould": [4, 4], "rung": ["dataset solver", "anneal 1000 + FIRE"],
+    pd.DataFrame({"mould": [4, 4], "rung": ["dataset solver", "anneal 1000 + relax"],
                   "budget": [np.nan, 1000.0], "runs": [8, 3], "energy_per_cell": [0.01, 0.0101],
                   "distance_to_dataset": [0.0, 0.02], "spread": [0.1, 0.11]}).to_csv(
         d / "ladder.csv", index=False)
@@ -226,7 +226,7 @@ def test_statistics_verdict_names_biases_and_small_samples():
 
 
 def test_ladder_verdict():
-    table = pd.DataFrame({"rung": ["dataset solver", "anneal 1000 + FIRE", "anneal 1000 + FIRE"],
+    table = pd.DataFrame({"rung": ["dataset solver", "anneal 1000 + relax", "anneal 1000 + relax"],
                           "budget": [np.nan, 1000.0, 1000.0], "distance_to_dataset": [0, 0.02, 0.3],
                           "spread": [0.1, 0.1, 0.1]})
     assert "On 1 of 2 ladder moulds" in report.ladder_verdict(table)

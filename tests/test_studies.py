@@ -27,26 +27,28 @@ def small_mould(mould_id=0):
                  origin=(7.8, 7.8), unpruned_tethers=TETHERS)
 
 
-def test_anneal_then_fire_is_the_anneal_followed_by_tight_fire():
+def test_anneal_then_relax_is_the_anneal_followed_by_a_tight_relaxation():
     mould = small_mould()
-    result = reference.anneal_then_fire(mould, SCENE.depth, 50, seed=3)
+    result = reference.anneal_then_relax(mould, SCENE.depth, 50, seed=3)
     lattice = build_lattice(mould.polygon, mould.tethers, SCENE.depth)
     start = random_orientations(lattice.n_cells, np.random.default_rng([3, 1]))
     annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", 50, 3)
-    again = simulate_lattice(lattice, annealed.positions, annealed.orientations, "minimise",
+    again = simulate_lattice(lattice, annealed.positions, annealed.orientations, "lbfgs",
                              reference.TIGHT_MAX_ITER, 3, reference.TIGHT_FTOL)
     assert result.energy == pytest.approx(again.energy, rel=1e-12)
+    assert result.info["max_force"] <= reference.TIGHT_FTOL
+    assert result.info["evaluations"] == annealed.info["evaluations"] + again.info["evaluations"]
     assert result.energy < annealed.energy and result.status == "ok"
     assert result.seconds == pytest.approx(annealed.seconds + again.seconds, rel=0.5)
 
 
 def test_sweep_runs_every_method_once_with_independent_seeds():
     methods = sweep.study_methods(100, (10,))
-    assert [m.family for m in methods] == ["long anneal", "anneal", "minimise", "hybrid"]
+    assert [m.family for m in methods] == ["long anneal", "anneal", "minimise", "hybrid", "hybrid"]
     rows, fields = sweep.run_methods(small_mould(), SCENE, methods, dataset_seed=7)
     table = pd.DataFrame(rows).set_index("method")
-    assert fields.shape == (4, 8, SCENE.pixels, SCENE.pixels) and np.isfinite(fields).all()
-    assert (table["status"] == "ok").all() and table["seed"].nunique() == 4
+    assert fields.shape == (5, 8, SCENE.pixels, SCENE.pixels) and np.isfinite(fields).all()
+    assert (table["status"] == "ok").all() and table["seed"].nunique() == 5
     converged = table.loc["minimise", "energy_per_cell"]
     assert table.loc["anneal 10", "energy_per_cell"] > 2 * converged  # unconverged
     assert table.loc["long anneal 100", "energy_per_cell"] < 1.05 * converged
@@ -148,7 +150,7 @@ def test_convergence_reference_rows_are_zero_and_a_thin_slab_is_not_justified():
 
 def test_ladder_finds_its_own_recipe_in_the_same_states():
     mould = small_mould()
-    runs = [reference.anneal_then_fire(mould, SCENE.depth, 200, seed=50 + k) for k in range(4)]
+    runs = [reference.anneal_then_relax(mould, SCENE.depth, 200, seed=50 + k) for k in range(4)]
     from condor.fields import cell_fields
 
     raw = np.stack([cell_fields(r.positions, r.orientations, r.tension, SCENE.box, SCENE.pixels,
@@ -158,7 +160,7 @@ def test_ladder_finds_its_own_recipe_in_the_same_states():
                              pixel_size=SCENE.pixel_size, seconds=np.ones((1, 4)),
                              energy_per_cell=np.array([[r.energy_per_cell for r in runs]]))
     table = ladder(ens, [mould], SCENE, budgets=(200,), n_seeds=3, dataset_seed=0)
-    rung = table[table["rung"] == "anneal 200 + FIRE"].iloc[0]
+    rung = table[table["rung"] == "anneal 200 + relax"].iloc[0]
     assert rung["runs"] == 3 and np.isfinite(rung["energy_per_cell"])
     # the same recipe with other seeds: the expected fields agree within the scatter
     assert rung["distance_to_dataset"] < rung["spread"]

@@ -272,12 +272,12 @@ def ladder_verdict(ladder: pd.DataFrame) -> str:
     far = longest[longest["distance_to_dataset"] > 0.5 * longest["spread"]]
     budget = f"{rungs['budget'].max():g}"
     if far.empty:
-        return (f"On every ladder mould, the anneal of {budget} moves per cell (then FIRE) lands "
+        return (f"On every ladder mould, the anneal of {budget} moves per cell (then relaxed) lands "
                 "within half of one simulation's scatter of the dataset solver's expected fields: "
                 "at this budget the fast solver samples the same states.")
     ratio = (far["distance_to_dataset"] / far["spread"]).median()
     return (f"On {len(far)} of {len(longest)} ladder moulds the anneal of {budget} moves per cell "
-            f"(then FIRE) differs from the dataset solver's expected fields by more than half a "
+            f"(then relaxed) differs from the dataset solver's expected fields by more than half a "
             f"simulation's scatter (median distance {ratio:.2g} x the scatter): the dataset "
             "solver's expected fields carry that bias against the slower anneal.")
 
@@ -389,7 +389,7 @@ def _simulator_section(inp) -> Section:
                              "noise_T", "noise_Sx2", "justified") if c in convergence.columns]
     return Section("simulator", "Simulator: the anneal ladder, convergence and stability", [
         table(ladder[ladder_cols], "The anneal ladder: each rung (anneal budget in moves per "
-              "cell, then FIRE) on test moulds, beside the dataset solver's replicas: energy per "
+              "cell, then relaxed by L-BFGS to max force 1e-5) on test moulds, beside the dataset solver's replicas: energy per "
               "cell (median, range), the distance between the rung's and the dataset solver's "
               "expected fields (RMS, noise removed) and the scatter of one simulation within the "
               "rung.", digits=3),

@@ -1,7 +1,7 @@
 """The anneal ladder: does the dataset's fast solver sample the paper's ensemble?
 
 "CONDOR" means the paper's anneal (1e6 moves per cell). On a few test moulds each rung of
-the ladder (an anneal budget, then tight FIRE: `reference.anneal_then_fire`) is run with
+the ladder (an anneal budget, then tight relaxation: `reference.anneal_then_relax`) is run with
 several seeds: an ensemble. Each rung's expected fields are compared with the dataset
 solver's (the store's replicas of the same moulds) by the noise-corrected distance between
 ensemble means (condor.estimators.ensemble_distance), beside the scatter of one simulation
@@ -18,7 +18,7 @@ from condor import estimators as est
 from condor.fields import cell_fields, normalise
 from condor.progress import progress
 from condor.seeds import study_seed
-from condor.studies.reference import anneal_then_fire
+from condor.studies.reference import anneal_then_relax
 
 
 def _rms(values) -> float:
@@ -47,7 +47,7 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
             for k in progress(range(n_seeds), desc=f"mould {mould.mould_id} anneal {budget:g}",
                               unit="run"):
                 seed = study_seed(dataset_seed, mould.mould_id, 1000 + k)
-                r = anneal_then_fire(mould, scene.depth, budget, seed)
+                r = anneal_then_relax(mould, scene.depth, budget, seed)
                 if r.status != "ok":
                     continue
                 f = cell_fields(r.positions, r.orientations, r.tension, scene.box, scene.pixels,
@@ -56,7 +56,7 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
                 energies.append(r.energy_per_cell)
                 accept.append(r.info.get("anneal_accept_pos", np.nan))
                 inverted.append(r.info.get("inverted_fraction", np.nan))
-            row = {"mould": int(mould.mould_id), "rung": f"anneal {budget:g} + FIRE",
+            row = {"mould": int(mould.mould_id), "rung": f"anneal {budget:g} + relax",
                    "budget": float(budget), "runs": len(fields)}
             if len(fields) >= 2:
                 ens = np.stack(fields)[None]

@@ -1,7 +1,7 @@
 """Simulation methods run on one mould: the answers the accuracy study scores.
 
 A method is a solver with its budget and force tolerance: the long anneal (the paper's
-algorithm at the longest budget affordable, then tight FIRE: `reference.anneal_then_fire`),
+algorithm at the longest budget affordable, then tight relaxation: `reference.anneal_then_relax`),
 short anneals that stop unconverged, the minimiser, and the converged hybrid (ftol 1e-4). Each
 runs once per mould with a study seed (`condor.seeds.study_seed`), independent of the
 dataset's replicas, which are the truth it is scored against. The dataset's own solver needs
@@ -18,7 +18,7 @@ from condor.fields import cell_fields
 from condor.progress import progress
 from condor.seeds import study_seed
 from condor.simulate import SimResult, simulate
-from condor.studies.reference import anneal_then_fire
+from condor.studies.reference import anneal_then_relax
 
 CONVERGED_FTOL = 1.0e-4  # the hybrid "converged" rung (kappa0 l0)
 
@@ -26,7 +26,7 @@ CONVERGED_FTOL = 1.0e-4  # the hybrid "converged" rung (kappa0 l0)
 @dataclass(frozen=True)
 class Method:
     """One simulation method: label (as charts and tables name it), family (its colour),
-    solver, budget (moves per cell for anneals), ftol, and whether FIRE follows a long anneal."""
+    solver, budget (moves per cell for anneals), ftol, and whether a tight relaxation follows a long anneal."""
 
     label: str
     family: str
@@ -38,11 +38,13 @@ class Method:
 
 def study_methods(reference_budget: float, anneal_budgets, converged_ftol: float = CONVERGED_FTOL
                   ) -> list[Method]:
-    """The long anneal, the short anneals, the minimiser and the converged hybrid."""
+    """The long anneal, the short anneals, the minimiser, the hybrid at its own tolerance (the
+    dataset's solver before L-BFGS) and converged."""
     methods = [Method(f"long anneal {reference_budget:g}", "long anneal", "anneal",
                       float(reference_budget), long_anneal=True)]
     methods += [Method(f"anneal {b:g}", "anneal", "anneal", float(b)) for b in anneal_budgets]
     methods.append(Method("minimise", "minimise", "minimise"))
+    methods.append(Method("hybrid (old default)", "hybrid", "hybrid"))
     methods.append(Method(f"hybrid ftol {converged_ftol:g}", "hybrid", "hybrid", None,
                           converged_ftol))
     return methods
@@ -51,7 +53,7 @@ def study_methods(reference_budget: float, anneal_budgets, converged_ftol: float
 def run_method(mould, scene, method: Method, seed: int) -> SimResult:
     """One run of `method` on `mould` in `scene`."""
     if method.long_anneal:
-        return anneal_then_fire(mould, scene.depth, method.budget, seed)
+        return anneal_then_relax(mould, scene.depth, method.budget, seed)
     return simulate(mould.polygon, mould.tethers, scene.depth, method.solver, method.budget,
                     seed, method.ftol)
 
