@@ -16,6 +16,7 @@ rule fields:
         store=STORE,
     log:
         f"{R}/logs/fields/batch_{{batch}}.log",
+    priority: 20
     resources:
         runtime=10,
         mem_mb=2000,

@@ -29,6 +29,7 @@ rule moulds:
         store=STORE,
     log:
         f"{R}/logs/moulds/batch_{{batch}}.log",
+    priority: 20
     resources:
         runtime=10,
         mem_mb=1000,

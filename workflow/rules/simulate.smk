@@ -11,6 +11,8 @@ rule simulate:
         directory(f"{R}/sims/batch_{{batch}}"),
     log:
         f"{R}/logs/simulate/batch_{{batch}}.log",
+    # the critical path first (dataset, then training); the studies fill the cores after
+    priority: 20
     threads: 1
     resources:
         runtime=60,

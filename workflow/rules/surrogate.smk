@@ -24,6 +24,7 @@ rule train:
         store=STORE,
     log:
         f"{R}/logs/train/{{variant}}.log",
+    priority: 10  # before the studies: it holds every core, they can share them after
     threads: CONFIG.surrogate["threads"]
     resources:
         runtime=24 * 60,
