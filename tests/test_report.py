@@ -125,7 +125,7 @@ def statistics_table(n=12, bias=0.002, r=0.99):
 
 def fake_inputs(tmp_path):
     d = tmp_path
-    for name in ("gallery", "samples", "chart", "conv", "spread", "dconf", "dhist", "dfig"):
+    for name in ("gallery", "samples", "chart", "conv", "spread", "dconf", "dhist", "dfig", "curves"):
         png(d / f"{name}.png", seed=len(name))
     pd.DataFrame({"sample": range(4), "mould": range(4), "split": ["train", "train", "val", "test"],
                   "status": ["ok", "ok", "ok", "folded: 2% inverted"],
@@ -148,6 +148,9 @@ def fake_inputs(tmp_path):
                   "as_expected": [True], "what": ["valid"]}).to_csv(d / "stab.csv", index=False)
     pd.DataFrame({"method": ["unet_eval"], "mae_P": [0.1]}).to_csv(d / "ssum.csv", index=False)
     pd.DataFrame({"epoch": [1, 2], "l1": [0.5, 0.4]}).to_csv(d / "unet_history.csv", index=False)
+    pd.DataFrame({"n_train": [50, 100], "epochs": [20, 10], "field_rms": [0.4, 0.3],
+                  "field_rms_lo": [0.35, 0.25], "field_rms_hi": [0.45, 0.35],
+                  "ceiling_rms": [0.5, 0.5]}).to_csv(d / "surrogate_curve_data.csv", index=False)
     figures = d / "evaluation" / "unet" / "figures"
     figures.mkdir(parents=True)
     png(figures / "unet_eval_statistics.png", seed=9)
@@ -175,7 +178,8 @@ def fake_inputs(tmp_path):
               "evaluations": [figures], "histories": [d / "unet_history.csv"],
               "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
               "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
-              "design_figure": d / "dfig.png"}
+              "design_figure": d / "dfig.png", "learning_curves": d / "curves.png",
+              "learning_curve_tables": [d / "surrogate_curve_data.csv"]}
     assert set(inputs) == set(report.REPORT_INPUTS)
     return inputs, store
 
@@ -186,7 +190,8 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     page = out.read_text()
     p = parse(page)
     assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#design", "#dataset"]
-    assert len(p.images) == 9  # chart, spread, convergence, evaluation, 3 design, gallery, samples
+    assert len(p.images) == 10  # chart, spread, convergence, curves, evaluation, 3 design,
+    # gallery, samples
     assert "which beats the best of the 24 test moulds" in page and "rho 0.92" in page
     assert "90% interval covers" in page
     assert all(src.startswith("data:image/png;base64,") for src in p.images)
@@ -250,3 +255,24 @@ def test_report_renders_in_headless_chromium(tmp_path):
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body></body></html>")
     assert report.screenshot_coverage(report.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
+
+
+def test_learning_curves_figure_draws_each_table_and_refuses_none(tmp_path):
+    from condor.stages.surrogate import learning_curves_figure
+
+    data = pd.DataFrame({"n_train": [50, 100, 200], "epochs": [40, 20, 10],
+                         "field_rms": [0.4, 0.3, 0.25], "field_rms_lo": [0.35, 0.25, 0.2],
+                         "field_rms_hi": [0.45, 0.35, 0.3], "ceiling_rms": [0.5] * 3})
+    data.to_csv(tmp_path / "data.csv", index=False)
+    epochs = data.assign(epochs=[10, 20, 40]).drop(columns="n_train")
+    epochs.to_csv(tmp_path / "epochs.csv", index=False)
+    out = learning_curves_figure({"data": tmp_path / "data.csv", "epochs": tmp_path / "epochs.csv"},
+                                 tmp_path / "curves.png")
+    from PIL import Image
+
+    wide = Image.open(out).size
+    one = Image.open(learning_curves_figure({"data": tmp_path / "data.csv"},
+                                            tmp_path / "one.png")).size
+    assert wide[0] > 1.8 * one[0]  # one panel per curve
+    with pytest.raises(ValueError, match="no learning curve"):
+        learning_curves_figure({}, tmp_path / "none.png")

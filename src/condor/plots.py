@@ -187,6 +187,43 @@ def accuracy_chart(table, path, title: str = "") -> Path:
     return save(fig, path, dpi=120)
 
 
+# The curves' x axes: training moulds, parameters, epochs (benchmarks/bench_surrogate_curves.py).
+CURVE_AXES = {"data": ("n_train", "training moulds", True),
+              "size": ("parameters", "parameters", True),
+              "epochs": ("epochs", "epochs", False)}
+
+
+def learning_curves(curves, path) -> Path:
+    """The surrogate's field error against the expected fields (bars: 95% interval over test
+    moulds) against training moulds, model size and epochs, one panel per curve in `curves`
+    (name -> DataFrame with the x column of CURVE_AXES, field_rms, field_rms_lo, field_rms_hi,
+    ceiling_rms); the single-simulation ceiling dashed."""
+    plt = pyplot()
+    names = [n for n in CURVE_AXES if n in curves]
+    if not names:
+        raise ValueError(f"no learning curve among {sorted(curves)}; expected {list(CURVE_AXES)}")
+    fig, axes = plt.subplots(1, len(names), figsize=(4.2 * len(names), 3.6), squeeze=False)
+    for ax, name in zip(axes[0], names):
+        df = curves[name].sort_values(CURVE_AXES[name][0])
+        x_col, label, log_x = CURVE_AXES[name]
+        err = [(df["field_rms"] - df["field_rms_lo"]).clip(lower=0),
+               (df["field_rms_hi"] - df["field_rms"]).clip(lower=0)]
+        ax.errorbar(df[x_col], df["field_rms"], yerr=err, fmt="o-", ms=5, capsize=2,
+                    color="tab:blue", label="surrogate")
+        ax.axhline(float(df["ceiling_rms"].iloc[0]), color="tab:olive", ls="--", lw=1.2,
+                   label="one simulation (ceiling)")
+        if log_x:
+            ax.set_xscale("log")
+        ax.set_ylim(bottom=0)
+        ax.set_xlabel(label)
+        ax.set_ylabel("field error vs expected fields")
+        ax.grid(alpha=0.3, which="both", lw=0.4)
+        ax.set_title(f"against {label}", fontsize=9)
+    axes[0][0].legend(fontsize=7, loc="lower left")
+    fig.tight_layout()
+    return save(fig, path, dpi=110)
+
+
 def convergence_chart(df, path) -> Path:
     """Systematic field change per channel (noise removed) against depth and box size; dashed:
     half the scatter of one simulation (a change below it is justified)."""

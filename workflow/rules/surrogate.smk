@@ -121,3 +121,31 @@ FINAL_TARGETS.extend(
         *expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
     ]
 )
+
+
+# The learning curves that chose the default surrogate are measured outside the workflow
+# (benchmarks/bench_surrogate_curves.py: many trainings) and committed as small tables; the
+# report shows them beside this run's own figures.
+CURVE_TABLES = Path(workflow.basedir) / "docs" / "data"
+LEARNING_CURVES = {
+    name: str(path)
+    for name in ("data", "size", "epochs")
+    if (path := CURVE_TABLES / f"surrogate_curve_{name}.csv").exists()
+}
+
+
+rule learning_curves:
+    conda:
+        CONDA_ENV
+    input:
+        **LEARNING_CURVES,
+    output:
+        f"{R}/figures/learning_curves.png",
+    log:
+        f"{R}/logs/learning_curves.log",
+    script:
+        "../scripts/learning_curves.py"
+
+
+localrules:
+    learning_curves,

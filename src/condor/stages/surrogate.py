@@ -16,7 +16,7 @@ from pathlib import Path
 import pandas as pd
 
 from condor.config import check_device
-from condor.plots import evaluation_figures
+from condor.plots import evaluation_figures, learning_curves
 from condor.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.evaluate import combine_summaries
@@ -128,3 +128,9 @@ def summarise(summary_csvs, out_csv) -> pd.DataFrame:
     table = combine_summaries(summary_csvs)
     table.to_csv(out_csv)
     return table
+
+
+def learning_curves_figure(tables: dict, out_png) -> Path:
+    """The learning curves measured by benchmarks/bench_surrogate_curves.py (the committed
+    tables docs/data/surrogate_curve_<name>.csv, `tables`: name -> path) drawn for the report."""
+    return learning_curves({name: pd.read_csv(path) for name, path in tables.items()}, out_png)
