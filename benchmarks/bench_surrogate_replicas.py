@@ -2,14 +2,21 @@
 
 Replica r of mould i (global seed S) is simulated with seed `condor.seeds.replica_seed(S, i, r)`,
 the store's replica convention (r = 0 is the dataset's own sample), by the store's solver and
-budget unless --solver names another. (A store built with `simulation.replicas.test` > 1
-already holds its test moulds' replicas and their mean, `fields_mean`.) Writes an .npz with
-`mould_ids` (M,), `fields` (M, R, 8, H, W) float32 (replica 0 from the store), `n_cells` (M,),
-`seeds` (M, R), `energy` (M, R) total energies. Resumable: finished moulds are kept in a
-per-mould cache beside the output.
+budget unless --solver names another. Writes an .npz with `mould_ids` (M,), `fields`
+(M, R, 8, H, W) float32 (replica 0 from the store), `n_cells` (M,), `seeds` (M, R), `energy`
+(M, R) total energies. Resumable: finished moulds are kept in a per-mould cache beside the
+output.
 
     PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --replicas 8 \
         --out /work/data/surrogate/replicas.npz
+
+A store built with `simulation.replicas.test` > 1 (the default config: 8) already holds its
+test moulds' replicas: `--from-store` copies them into the same .npz, simulating nothing
+(every replica of the split's replicated moulds, replica 0 first; each sample's seed is
+checked against condor.seeds.replica_seed):
+
+    PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --from-store \
+        --out replicas.npz
 """
 
 from __future__ import annotations
@@ -25,6 +32,36 @@ from condor.moulds import MouldParams
 from condor.scenes import Scene
 from condor.seeds import replica_seed
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
+from condor.store import replica_samples
+
+
+def from_store(store: str, split: str, out: str) -> None:
+    """The .npz of the store's own replicas of `split`'s replicated moulds (no simulation)."""
+    ds = open_dataset(store)
+    seed = int(ds.attrs["seed"])
+    first = np.asarray(ds["replica"].values) == 0
+    in_split = np.asarray(ds["split"].values).astype(str) == split
+    counts = np.asarray(ds.attrs["replicas"])
+    ids = np.flatnonzero(first & in_split & (counts[np.asarray(ds["mould"].values)] > 1))
+    if len(ids) == 0:
+        raise SystemExit(f"{store}: no {split} mould has more than one replica")
+    samples = np.array([replica_samples(store, int(m)) for m in ids])  # (M, R); ragged raises
+    status = np.asarray(ds["status"].values).astype(str)[samples]
+    if not np.all(status == "ok"):
+        raise SystemExit(f"{store}: {int(np.sum(status != 'ok'))} replica samples not ok")
+    seeds = np.asarray(ds["sim_seed"].values)[samples]
+    expected = np.array([[replica_seed(seed, int(m), r) for r in range(samples.shape[1])]
+                         for m in ids])
+    if not np.array_equal(seeds, expected):
+        raise SystemExit(f"{store}: sample seeds differ from condor.seeds.replica_seed")
+    n_cells = np.asarray(ds["n_cells"].values)[samples]
+    if not np.all(n_cells == n_cells[:, :1]):
+        raise SystemExit(f"{store}: replicas of one mould disagree on the number of cells")
+    fields = np.asarray(ds["fields"].isel(sample=samples.ravel()).values, dtype=np.float32)
+    np.savez(out, mould_ids=ids, fields=fields.reshape(*samples.shape, *fields.shape[1:]),
+             seeds=seeds, energy=np.asarray(ds["energy"].values)[samples],
+             n_cells=n_cells[:, 0])
+    print(f"wrote {out}: {len(ids)} moulds x {samples.shape[1]} replicas from {store}")
 
 
 def main() -> None:
@@ -35,7 +72,11 @@ def main() -> None:
     ap.add_argument("--solver", default=None,
                     help="default: the store's solver and budget (replicas of its samples)")
     ap.add_argument("--out", required=True)
+    ap.add_argument("--from-store", action="store_true",
+                    help="copy the replicas the store already holds (simulates nothing)")
     args = ap.parse_args()
+    if args.from_store:
+        return from_store(args.store, args.split, args.out)
 
     ds = open_dataset(args.store)
     scene = Scene(**ds.attrs["scene"])
