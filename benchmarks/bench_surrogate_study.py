@@ -19,6 +19,7 @@ Replicas come from benchmarks/bench_surrogate_replicas.py.
 from __future__ import annotations
 
 import argparse
+import fcntl
 import json
 import shutil
 import time
@@ -246,9 +247,12 @@ def main() -> None:
                          **row})
     frame = pd.DataFrame(rows)
     results = out / "results.csv"
-    if results.exists():
-        frame = pd.concat([pd.read_csv(results), frame], ignore_index=True)
-    frame.to_csv(results, index=False)
+    # Runs of one curve may share DIR and finish together: append under an exclusive lock.
+    with open(out / "results.csv.lock", "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        if results.exists():
+            frame = pd.concat([pd.read_csv(results), frame], ignore_index=True)
+        frame.to_csv(results, index=False)
     cols = ["name", "epochs", "mode", "symmetrise", "field_rms", "ceiling_rms", "mean_P:r",
             "mean_P:bias", "mean_T:bias", "mean_Sx2:bias", "mean_T:r", "mean_Sx2:r",
             "checkerboard", "coverage_90"]
