@@ -6,6 +6,10 @@ shows (docs/data/surrogate_curve_*.csv) from the rows of bench_surrogate_study.p
     PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run data --out DIR \\
         --store BIG_STORE --val-store DEFAULT_STORE --replicas REPLICAS.npz
     PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run size --out DIR ...
+    # the three curves from three kinds of run: the data curve's default-sized run also gives
+    # the epoch curve (--epochs-at) and the size curve's base-32 point (--n-train 194)
+    ... run data --sizes 194 --epochs-at 30 60 120 180 --store BIG_STORE --val-store ...
+    ... run size --bases 16 48 --n-train 194 --store BIG_STORE --val-store ...
     # the tables
     PYTHONPATH=src python benchmarks/bench_surrogate_curves.py tables --out DIR --docs docs/data
 
@@ -14,8 +18,13 @@ Curves share the default's settings (config/config.yaml, variant `unet`) and cha
   `--config n_moulds=960`: the same seed gives the same first moulds), n in --sizes, each
   trained for the same number of optimiser steps as the default (epochs = default epochs x
   default training moulds / n), so that only the data changes;
-- size: U-Net base width in --bases on the default store's training moulds;
-- epochs: one default run evaluated at --epochs-at snapshots.
+- size: U-Net base width in --bases on the default store's training moulds (or the first
+  --n-train of --store, as the data curve takes them);
+- epochs: one default run evaluated at --epochs-at snapshots (`run epochs`, or `run data`
+  with --epochs-at: the run of the default's 194 moulds is then snapshotted).
+`tables` completes the size and epoch curves with the data curve's default-sized run
+(data_194) where they lack it: its final row is the size curve's default width, its
+snapshots the epoch curve.
 """
 
 from __future__ import annotations
@@ -57,27 +66,42 @@ def run(args) -> None:
     if args.curve == "data":
         for n in args.sizes:
             epochs = max(1, round(base["epochs"] * DEFAULT_TRAIN_MOULDS / n))
-            study(f"data_{n}", {**base, "epochs": epochs}, args, args.store, ["--n-train", str(n)])
+            snapshots = ["--epochs-at", *map(str, args.epochs_at)] \
+                if args.epochs_at and n == DEFAULT_TRAIN_MOULDS else []
+            study(f"data_{n}", {**base, "epochs": epochs}, args, args.store,
+                  ["--n-train", str(n), *snapshots])
     elif args.curve == "size":
+        n_train = ["--n-train", str(args.n_train)] if args.n_train else []
         for width in args.bases:
-            study(f"base_{width}", {**base, "base": width}, args, args.store)
+            study(f"base_{width}", {**base, "base": width}, args, args.store, n_train)
     else:
         study("epochs", base, args, args.store,
-              ["--epochs-at", *map(str, args.epochs_at)])
+              ["--epochs-at", *map(str, args.epochs_at or [15, 30, 60, 120, 180])])
 
 
 def tables(args) -> None:
     rows = pd.read_csv(Path(args.out) / "results.csv").drop_duplicates(
         subset=["name", "epochs", "mode", "symmetrise"], keep="last")
+    rows = rows.copy()
+    rows["base"] = [json.loads(s).get("unet", json.loads(s)).get("base") for s in rows["settings"]]
+    final = rows[rows["epochs"] == rows.groupby("name")["epochs"].transform("max")]
+    default_run = f"data_{DEFAULT_TRAIN_MOULDS}"
     docs = Path(args.docs)
     docs.mkdir(parents=True, exist_ok=True)
-    picks = {"data": rows[rows["name"].str.startswith("data_")].sort_values("n_train"),
-             "size": rows[rows["name"].str.startswith("base_")].sort_values("parameters"),
-             "epochs": rows[rows["name"] == "epochs"].sort_values("epochs")}
+    data = final[final["name"].str.startswith("data_")]
+    size = final[final["name"].str.startswith("base_")]
+    if not (size["base"] == default_settings()["base"]).any():
+        size = pd.concat([size, final[final["name"] == default_run]])
+    epochs = rows[rows["name"] == "epochs"]
+    if epochs.empty:
+        epochs = rows[rows["name"] == default_run]
+    picks = {"data": data.sort_values("n_train"), "size": size.sort_values("parameters"),
+             "epochs": epochs.sort_values("epochs")}
     for curve, frame in picks.items():
         if frame.empty:
             continue
-        table = frame[[c for c in COLUMNS if c in frame.columns]]
+        table = frame[[c for c in (["base"] if curve == "size" else []) + COLUMNS
+                       if c in frame.columns]]
         table.to_csv(docs / f"surrogate_curve_{curve}.csv", index=False, float_format="%.4g")
         print(f"{curve}:\n{table.to_string(index=False)}\n")
 
@@ -94,7 +118,11 @@ def main() -> None:
     r.add_argument("--threads", type=int, default=1)
     r.add_argument("--sizes", type=int, nargs="+", default=[48, 97, 194, 388, 776])
     r.add_argument("--bases", type=int, nargs="+", default=[8, 16, 32, 48])
-    r.add_argument("--epochs-at", type=int, nargs="+", default=[15, 30, 60, 120, 180])
+    r.add_argument("--epochs-at", type=int, nargs="+",
+                   help="snapshots: of the epochs run (default 15 30 60 120 180), or of the "
+                   "data curve's 194-mould run (default none)")
+    r.add_argument("--n-train", type=int,
+                   help="size curve: train on the first N training moulds of --store")
     t = sub.add_parser("tables")
     t.add_argument("--out", required=True)
     t.add_argument("--docs", default=str(REPO / "docs" / "data"))
