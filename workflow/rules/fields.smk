@@ -35,6 +35,7 @@ rule dataset:
         store=STORE,
     log:
         f"{R}/logs/dataset.log",
+    priority: 20  # training waits on it (a priority does not pass to a job's inputs)
     script:
         "../scripts/dataset.py"
 
