@@ -43,8 +43,10 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
 COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms", "field_rms_lo",
            "field_rms_hi", "ceiling_rms", "error_over_ceiling", "error_over_ceiling_lo",
-           "error_over_ceiling_hi", "mean_T:r", "mean_T:bias", "mean_Sx2:r", "mean_Sx2:bias",
-           "mean_Sy2:r", "n_P_gt_0.2:r", "n_P_gt_0.2:bias", "coverage_90", "spread_r"]
+           "error_over_ceiling_hi",
+           *[f"{s}:{k}" for s in ("mean_T", "mean_Sx2", "n_P_gt_0.2")
+             for k in ("r", "r_lo", "r_hi", "bias", "bias_lo", "bias_hi")],
+           "mean_Sy2:r", "coverage_90", "spread_r"]
 
 
 def default_settings(variant: str = "unet") -> dict:
