@@ -139,6 +139,29 @@ FAMILY_COLOURS = {"long anneal": "black", "anneal": "tab:red", "minimise": "tab:
                   "surrogate": "tab:orange", "baseline": "tab:brown"}
 
 
+def _label_points(ax, points, fontsize: float = 7) -> None:
+    """Annotate (x, y, label) points, each label at the first of a few offsets around its
+    point where its drawn box overlaps no label already placed (a cluster of methods at
+    similar cost and error stays readable). Call after the limits and the layout are final."""
+    renderer = ax.figure.canvas.get_renderer()
+    offsets = ((4, 3, "left"), (4, -10, "left"), (-4, 3, "right"), (-4, -10, "right"),
+               (4, 12, "left"), (4, -19, "left"), (-4, 12, "right"), (-4, -19, "right"))
+    placed = []
+    for x, y, label in sorted(points, key=lambda p: (p[0], p[1])):
+        for dx, dy, ha in offsets:
+            text = ax.annotate(label, (x, y), fontsize=fontsize, xytext=(dx, dy), ha=ha,
+                               textcoords="offset points")
+            box = text.get_window_extent(renderer)
+            if not any(box.overlaps(other) for other in placed):
+                break
+            text.remove()
+        else:  # every offset is taken: keep the first
+            text = ax.annotate(label, (x, y), fontsize=fontsize, xytext=offsets[0][:2],
+                               textcoords="offset points")
+            box = text.get_window_extent(renderer)
+        placed.append(box)
+
+
 def accuracy_chart(table, path, title: str = "") -> Path:
     """Field error against the expected fields (noise removed; bars: 95% bootstrap interval
     over moulds) against CPU seconds per mould (log x), one point per method. The row "single
@@ -161,8 +184,6 @@ def accuracy_chart(table, path, title: str = "") -> Path:
                [max(row.field_error_hi - row.field_error, 0)]]
         ax.errorbar(x, row.field_error, yerr=err, fmt="o", ms=6, elinewidth=1, capsize=2,
                     color=FAMILY_COLOURS.get(row.family, "grey"))
-        ax.annotate(row.method, (x, row.field_error), fontsize=7, xytext=(4, 3),
-                    textcoords="offset points")
     ax.axvspan(*PAPER_SIMULATION_SECONDS, color="tab:red", alpha=0.10)
     ax.axvline(PAPER_PREDICTION_SECONDS, color="tab:orange", ls="--", lw=1)
     ax.set_xscale("log")
@@ -184,6 +205,8 @@ def accuracy_chart(table, path, title: str = "") -> Path:
     ax.set_title(title or "cost per mould against error, every method, same test moulds",
                  fontsize=9)
     fig.tight_layout()
+    _label_points(ax, [(max(float(r.cpu_s_per_mould), 1e-5), float(r.field_error), r.method)
+                       for r in table.itertuples()])
     return save(fig, path, dpi=120)
 
 
