@@ -42,7 +42,7 @@ from condor.minimise import minimise
 from condor.moulds import generate_mould
 from condor.scenes import get_scene
 from condor.seeds import replica_seed
-from condor.walls import FLOOR, LID, PINNED, SLIDE, place, project_state
+from condor.walls import SLIDE, hold_on_walls, place, project_state
 from condor.lbfgs import _gradients
 
 MAX_EVALUATIONS = 30000
@@ -81,18 +81,7 @@ def fire2_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y
         evals += 1
         if fmax < ftol or not math.isfinite(e):
             break
-        # keep velocities of held cells on their walls
-        for m in range(nm):
-            md = mode[m]
-            if md & 3 == SLIDE:
-                vn = v[m, 0] * normal[m, 0] + v[m, 1] * normal[m, 1]
-                v[m, 0] -= vn * normal[m, 0]
-                v[m, 1] -= vn * normal[m, 1]
-            elif md & 3 == PINNED:
-                v[m, 0] = 0.0
-                v[m, 1] = 0.0
-            if md & (FLOOR | LID):
-                v[m, 2] = 0.0
+        hold_on_walls(v, mode, normal)  # keep velocities of held cells on their walls
         power = 0.0
         for m in range(nm):
             for a in range(6):

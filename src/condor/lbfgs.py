@@ -36,7 +36,7 @@ import numpy as np
 
 from condor.energy import DELTA, energy_gradient
 from condor.lattice import region_distance
-from condor.walls import (FLOOR, LID, LIPSCHITZ, ON_WALL, PINNED, SLIDE, place, project_force,
+from condor.walls import (LIPSCHITZ, ON_WALL, SLIDE, hold_on_walls, place, project_force,
                           project_state)
 
 FTOL = 3.0e-4  # kappa0 l0, default largest residual force (see docs/model.md)
@@ -165,18 +165,9 @@ def lbfgs_kernel(pos, ori, mobile, bond_i, bond_j, kbar, rest, delta, phi, x0, y
             beta = rho[idx] * _dot(y_mem[idx], d)
             _axpy(alpha[idx] - beta, s_mem[idx], d)
         # Keep held cells on their walls and orientations in the tangent plane.
+        hold_on_walls(d, mode, normal)
         for m in range(nm):
             c = mobile[m]
-            md = mode[m]
-            if md & 3 == SLIDE:
-                dn = d[m, 0] * normal[m, 0] + d[m, 1] * normal[m, 1]
-                d[m, 0] -= dn * normal[m, 0]
-                d[m, 1] -= dn * normal[m, 1]
-            elif md & 3 == PINNED:
-                d[m, 0] = 0.0
-                d[m, 1] = 0.0
-            if md & (FLOOR | LID):
-                d[m, 2] = 0.0
             dot = ori[c, 0] * d[m, 3] + ori[c, 1] * d[m, 4] + ori[c, 2] * d[m, 5]
             for a in range(3):
                 d[m, 3 + a] -= dot * ori[c, a]

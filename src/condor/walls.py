@@ -143,6 +143,24 @@ def project_force(phi, x0, y0, h, posts, depth, x, y, z, fx, fy, fz, plane=True)
 
 
 @numba.njit(cache=True)
+def hold_on_walls(vec, mode, normal):
+    """Remove, in place, the parts of per-cell moves vec (nm, >= 3; positions first) that
+    would take a held cell off its walls: the normal part on a wall it slides along, all of
+    the plane part in a corner, z on the floor or lid (`mode`, `normal` of the active set)."""
+    for m in range(len(mode)):
+        md = mode[m]
+        if md & 3 == SLIDE:
+            vn = vec[m, 0] * normal[m, 0] + vec[m, 1] * normal[m, 1]
+            vec[m, 0] -= vn * normal[m, 0]
+            vec[m, 1] -= vn * normal[m, 1]
+        elif md & 3 == PINNED:
+            vec[m, 0] = 0.0
+            vec[m, 1] = 0.0
+        if md & (FLOOR | LID):
+            vec[m, 2] = 0.0
+
+
+@numba.njit(cache=True)
 def land(phi, x0, y0, h, posts, j, x, y, onto):
     """Move (x, y) along the gradient of constraint j until it is satisfied (onto: until it is
     within [0, LAND]); Newton steps, then regula falsi on a bracketing segment.
