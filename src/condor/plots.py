@@ -237,6 +237,8 @@ def learning_curves(curves, path) -> Path:
                    label="one simulation (ceiling)")
         if log_x:
             ax.set_xscale("log")
+            ax.minorticks_off()
+        ax.set_xticks(df[x_col], [f"{v:,.0f}" for v in df[x_col]], fontsize=7)
         ax.set_ylim(bottom=0)
         ax.set_xlabel(label)
         ax.set_ylabel("field error vs expected fields")
