@@ -127,8 +127,8 @@ FINAL_TARGETS.extend(
 # (benchmarks/bench_surrogate_curves.py: many trainings) and committed as small tables; the
 # report shows them beside this run's own figures.
 CURVE_TABLES = Path(workflow.basedir) / "docs" / "data"
-LEARNING_CURVES = {
-    name: str(path)
+LEARNING_CURVES = {  # keyed <curve>_curve: Snakemake reserves some input names ("size")
+    f"{name}_curve": str(path)
     for name in ("data", "size", "epochs")
     if (path := CURVE_TABLES / f"surrogate_curve_{name}.csv").exists()
 }
