@@ -161,6 +161,27 @@ def hold_on_walls(vec, mode, normal):
 
 
 @numba.njit(cache=True)
+def _regula_falsi(phi, x0, y0, h, posts, j, ox, oy, ov, ix, iy, iv):
+    """Shrink the segment from (ox, oy) (value ov < 0) to (ix, iy) (iv >= 0) until its inside
+    end is within [0, LAND] of wall j (j < 0: of the whole region); return that end."""
+    for _ in range(_BRACKET_STEPS):
+        t = min(max(ov / (ov - iv), 0.01), 0.99)
+        mx = ox + t * (ix - ox)
+        my = oy + t * (iy - oy)
+        if j >= 0:
+            mv = constraint(phi, x0, y0, h, posts, j, mx, my)[0]
+        else:
+            mv = region_distance(phi, x0, y0, h, posts, mx, my)
+        if mv >= 0.0:
+            ix, iy, iv = mx, my, mv
+            if iv <= LAND:
+                break
+        else:
+            ox, oy, ov = mx, my, mv
+    return ix, iy
+
+
+@numba.njit(cache=True)
 def land(phi, x0, y0, h, posts, j, x, y, onto):
     """Move (x, y) along the gradient of constraint j until it is satisfied (onto: until it is
     within [0, LAND]); Newton steps, then regula falsi on a bracketing segment.
@@ -196,17 +217,7 @@ def land(phi, x0, y0, h, posts, j, x, y, onto):
     if not have_in:
         return x, y, False
     if have_out:
-        for _ in range(_BRACKET_STEPS):
-            t = min(max(ov / (ov - iv), 0.01), 0.99)
-            mx = ox + t * (ix - ox)
-            my = oy + t * (iy - oy)
-            mv = constraint(phi, x0, y0, h, posts, j, mx, my)[0]
-            if mv >= 0.0:
-                ix, iy, iv = mx, my, mv
-                if iv <= LAND:
-                    break
-            else:
-                ox, oy, ov = mx, my, mv
+        ix, iy = _regula_falsi(phi, x0, y0, h, posts, j, ox, oy, ov, ix, iy, iv)
     return ix, iy, True
 
 
@@ -235,19 +246,7 @@ def place(phi, x0, y0, h, posts, x, y, wall, old_x, old_y):
     ov = region_distance(phi, x0, y0, h, posts, x, y)
     if ov >= 0.0:
         return x, y
-    ox, oy = x, y
-    for _ in range(_BRACKET_STEPS):
-        t = min(max(ov / (ov - iv), 0.01), 0.99)
-        mx = ox + t * (ix - ox)
-        my = oy + t * (iy - oy)
-        mv = region_distance(phi, x0, y0, h, posts, mx, my)
-        if mv >= 0.0:
-            ix, iy, iv = mx, my, mv
-            if iv <= LAND:
-                break
-        else:
-            ox, oy, ov = mx, my, mv
-    return ix, iy
+    return _regula_falsi(phi, x0, y0, h, posts, -1, x, y, ov, ix, iy, iv)
 
 
 @numba.njit(cache=True)
