@@ -21,10 +21,6 @@ from condor.seeds import study_seed
 from condor.studies.reference import anneal_then_relax
 
 
-def _rms(values) -> float:
-    return float(np.sqrt(max(float(np.mean(values)), 0.0)))
-
-
 def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, log=None
            ) -> pd.DataFrame:
     """One row per (mould, rung) plus the dataset solver's own row per mould: runs, energy per
@@ -41,7 +37,8 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
         rows.append({"mould": int(mould.mould_id), "rung": "dataset solver", "budget": np.nan,
                      "runs": truth.shape[1], "energy_per_cell": float(np.median(energies)),
                      "energy_min": float(energies.min()), "energy_max": float(energies.max()),
-                     "distance_to_dataset": 0.0, "spread": _rms(est.noise_ceiling(truth[m:m + 1]))})
+                     "distance_to_dataset": 0.0,
+                     "spread": est.root_mean(est.noise_ceiling(truth[m:m + 1]))})
         for budget in budgets:
             fields, energies, accept, inverted = [], [], [], []
             for k in progress(range(n_seeds), desc=f"mould {mould.mould_id} anneal {budget:g}",
@@ -62,8 +59,9 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
                 ens = np.stack(fields)[None]
                 row.update(energy_per_cell=float(np.median(energies)),
                            energy_min=float(np.min(energies)), energy_max=float(np.max(energies)),
-                           distance_to_dataset=_rms(est.ensemble_distance(ens, truth[m:m + 1]).corrected),
-                           spread=_rms(est.noise_ceiling(ens)),
+                           distance_to_dataset=est.root_mean(
+                               est.ensemble_distance(ens, truth[m:m + 1]).corrected),
+                           spread=est.root_mean(est.noise_ceiling(ens)),
                            accept_pos=float(np.median(accept)),
                            inverted_fraction=float(np.max(inverted)))
             rows.append(row)
