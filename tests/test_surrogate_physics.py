@@ -226,3 +226,74 @@ def test_checkerboard_measures_the_period_two_pattern():
     assert checkerboard(pattern) == pytest.approx(0.3)
     assert checkerboard(smooth + pattern) == pytest.approx(0.3, abs=0.01)
     assert checkerboard(smooth) < 0.01
+
+
+def test_cosine_schedule_resumes_bit_identically_and_ends_near_zero(physics_ds, tmp_path):
+    cfg = TrainConfig(**PHYSICS, epochs=3, lr_schedule="cosine")
+    train(physics_ds, cfg, tmp_path / "full.pt", log=QUIET)
+
+    class Killed(Exception):
+        pass
+
+    def kill(line):  # called after the epoch's checkpoint is written
+        raise Killed(line)
+
+    with pytest.raises(Killed, match="epoch 1/3"):
+        train(physics_ds, cfg, tmp_path / "resumed.pt", log=kill)
+    train(physics_ds, cfg, tmp_path / "resumed.pt", log=QUIET)
+    a, b = (load_checkpoint(tmp_path / f) for f in ("full.pt", "resumed.pt"))
+    assert all(torch.equal(a["generator"][k], b["generator"][k]) for k in a["generator"])
+    # the last epoch's rate: 2e-3 * (1 + cos(2 pi / 3)) / 2 = 5e-4; constant stays at 2e-3
+    assert a["opt_g"]["param_groups"][0]["lr"] == pytest.approx(5e-4)
+    constant = train(physics_ds, TrainConfig(**PHYSICS, epochs=3), tmp_path / "const.pt",
+                     log=QUIET)
+    assert load_checkpoint(tmp_path / "const.pt")["opt_g"]["param_groups"][0]["lr"] == 2e-3
+    scheduled = a["history"]
+    assert constant[0]["mse"] == scheduled[0]["mse"]  # epoch 0: equal rates, equal steps
+    assert constant[2]["mse"] != scheduled[2]["mse"]
+
+
+def test_checkpoint_from_before_a_new_setting_resumes(physics_ds, tmp_path):
+    """A checkpoint written before lr_schedule existed resumes under the setting's default and
+    is refused under another value."""
+    path = tmp_path / "old.pt"
+    train(physics_ds, TrainConfig(**PHYSICS, epochs=1), path, log=QUIET)
+    state = load_checkpoint(path)
+    del state["config"]["lr_schedule"]
+    torch.save(state, path)
+    with pytest.raises(CheckpointMismatchError, match="lr_schedule: checkpoint 'constant' vs now 'cosine'"):
+        train(physics_ds, TrainConfig(**PHYSICS, epochs=2, lr_schedule="cosine"), path, log=QUIET)
+    assert len(train(physics_ds, TrainConfig(**PHYSICS, epochs=2), path, log=QUIET)) == 2
+
+
+def test_statistic_error_is_the_relative_error_of_whole_mould_sums():
+    """Against a direct numpy computation: predicted T, Sx2, Sy2 sums off by known factors,
+    over a target with a strongly tensed and a nearly tension-free mould."""
+    rng = np.random.default_rng(3)
+    head = PhysicsHead(np.ones(8), tension_scale=0.02, statistic_weight=2.0)
+    target = torch.from_numpy(rng.uniform(0.0, 1.0, (2, 8, 6, 6)))
+    target[1, I["T"]] *= 1e-4  # a nearly tension-free mould: the floor dominates
+    n_cells = np.array([30.0, 40.0])
+    factors = {"T": 1.10, "Sx2": 0.95, "Sy2": 1.02}
+    pred = target.clone()
+    for f, k in factors.items():
+        pred[:, I[f]] *= k
+    got = head.statistic_error(pred, target, torch.from_numpy(n_cells)).item()
+    terms = []
+    for f, k in factors.items():
+        sim = target[:, I[f]].sum(dim=(1, 2)).numpy()
+        per_cell = 0.02 if f == "T" else 1 / 3
+        terms.append(((k - 1) * sim / (np.abs(sim) + 0.05 * n_cells * per_cell)) ** 2)
+    assert got == pytest.approx(np.mean(terms), rel=1e-12)
+    assert head.statistic_error(target, target, torch.from_numpy(n_cells)).item() == 0.0
+    # the floor: the tension-free mould's 10% error counts for far less than the tensed one's
+    assert terms[0][1] < 1e-2 * terms[0][0]
+    # the loss adds it with its weight; without a weight it is absent
+    out = torch.randn(2, 16, 6, 6, dtype=torch.float64)
+    fields, _ = head.decode(out, torch.from_numpy(n_cells), calibrated=False)
+    with_stat, parts = head.loss(out, target, torch.from_numpy(n_cells))
+    without, parts0 = PhysicsHead(np.ones(8), 0.02).loss(out, target, torch.from_numpy(n_cells))
+    assert "stat" not in parts0
+    assert with_stat.item() == pytest.approx(
+        without.item() + 2.0 * head.statistic_error(fields, target, torch.from_numpy(n_cells)).item())
+    assert PhysicsHead.from_dict(head.to_dict()).statistic_weight == 2.0

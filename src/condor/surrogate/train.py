@@ -11,6 +11,7 @@ weights as 2 epochs: the data order and the torch RNG (dropout) are re-seeded fr
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, replace
@@ -38,6 +39,9 @@ LOSS_REGIONS = ("all", "tissue")
 # How training uses the replicas of a training mould (simulation.replicas.train > 1): replica
 # 0 only, every replica as a sample, or replica 0's inputs with the replicas' mean as target.
 REPLICA_USES = ("first", "all", "mean")
+# Learning rate over the run: constant, or a cosine from lr down to 0 at the last epoch (the
+# final weights then settle instead of drifting with Adam's step; docs/surrogate.md).
+LR_SCHEDULES = ("constant", "cosine")
 # Config keys that may change between a run and its resumption.
 RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode",
                   "symmetrise"}
@@ -70,6 +74,10 @@ class TrainConfig:
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
+    lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
+    epoch, so a resumed run follows the same schedule.
+    statistic_weight: weight of the whole-mould sums' relative error (physics head,
+    PhysicsHead.statistic_error) against the mean's squared error.
     """
 
     model: str = "pix2pix"
@@ -96,6 +104,8 @@ class TrainConfig:
     nll_weight: float = 1.0
     detach_spread: bool = True
     replicas: str = "all"
+    lr_schedule: str = "constant"
+    statistic_weight: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -109,7 +119,8 @@ class TrainConfig:
             raise ValueError(f"TrainConfig.prediction_mode {self.prediction_mode!r} is not one "
                              f"of {PREDICTION_MODES}")
         for name, allowed in (("head", HEADS), ("loss", LOSSES), ("scaling", SCALINGS),
-                              ("loss_region", LOSS_REGIONS), ("replicas", REPLICA_USES)):
+                              ("loss_region", LOSS_REGIONS), ("replicas", REPLICA_USES),
+                              ("lr_schedule", LR_SCHEDULES)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"TrainConfig.{name} {getattr(self, name)!r} is not one of {allowed}")
         if (self.head == "physics") != (self.loss == "gaussian"):
@@ -120,6 +131,9 @@ class TrainConfig:
         if self.model != "unet" and self.loss != "l1":
             raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
+        if self.statistic_weight < 0 or (self.statistic_weight and self.head != "physics"):
+            raise ValueError(f"TrainConfig.statistic_weight {self.statistic_weight} must be >= 0, "
+                             "and > 0 only with head 'physics'")
         if self.head == "physics" and self.scaling != "minmax":
             raise ValueError("TrainConfig: scaling applies to the tanh head only")
         for name in ("epochs", "batch_size", "val_every"):
@@ -141,6 +155,12 @@ class TrainConfig:
             return unet, None
         patch = self.patch or PatchConfig(in_channels=unet.in_channels + unet.out_channels)
         return unet, patch
+
+    def lr_at(self, epoch: int) -> float:
+        """Learning rate of 0-based `epoch` (of `epochs`)."""
+        if self.lr_schedule == "constant":
+            return self.lr
+        return self.lr * 0.5 * (1.0 + math.cos(math.pi * epoch / max(self.epochs, 1)))
 
     def to_dict(self) -> dict:
         d = asdict(self)
@@ -201,7 +221,9 @@ def _data_signature(ds, train_idx: np.ndarray) -> dict:
 
 def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
     """Raise CheckpointMismatchError naming `path` and every differing setting."""
-    old = {k: v for k, v in state["config"].items() if k not in RESUMABLE_KEYS}
+    # a setting added after the checkpoint was written takes its default there
+    old = {k: v for k, v in {**TrainConfig().to_dict(), **state["config"]}.items()
+           if k not in RESUMABLE_KEYS}
     new = {k: v for k, v in cfg.to_dict().items() if k not in RESUMABLE_KEYS}
     diffs = [f"{k}: checkpoint {old.get(k)!r} vs now {new.get(k)!r}"
              for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
@@ -276,7 +298,8 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
     split: a FieldScaling (tanh head: min/max, symmetrised when augmenting so that sign flips
     and swaps commute with it; or standard: each field / its RMS) or a PhysicsHead."""
     if cfg.head == "physics":
-        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight)
+        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
+                                statistic_weight=cfg.statistic_weight)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)
@@ -330,6 +353,9 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
         for epoch in range(start, cfg.epochs):
             t0 = time.perf_counter()
             torch.manual_seed(_epoch_seed(cfg.seed, epoch))
+            for opt in (opt_g, opt_d):
+                for group in opt.param_groups if opt is not None else ():
+                    group["lr"] = cfg.lr_at(epoch)
             order = np.random.default_rng([cfg.seed, epoch]).permutation(len(train_src))
             choices = augmentation_choices(cfg.seed, epoch, len(train_src))
             G.train()
@@ -366,7 +392,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
 
 
 def _format_record(r: dict, epochs: int) -> str:
-    parts = [f"epoch {r['epoch']}/{epochs}"] + [f"{k} {r[k]:.4f}" for k in ("l1", "mse", "nll")
+    parts = [f"epoch {r['epoch']}/{epochs}"] + [f"{k} {r[k]:.4f}" for k in ("l1", "mse", "nll", "stat")
                                                    if k in r] + [f"g_loss {r['g_loss']:.4f}"]
     if "d_loss" in r:
         parts.append(f"d_loss {r['d_loss']:.4f}")
