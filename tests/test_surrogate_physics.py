@@ -265,35 +265,3 @@ def test_checkpoint_from_before_a_new_setting_resumes(physics_ds, tmp_path):
         train(physics_ds, TrainConfig(**PHYSICS, epochs=2, lr_schedule="cosine"), path, log=QUIET)
     assert len(train(physics_ds, TrainConfig(**PHYSICS, epochs=2), path, log=QUIET)) == 2
 
-
-def test_statistic_error_is_the_relative_error_of_whole_mould_sums():
-    """Against a direct numpy computation: predicted T, Sx2, Sy2 sums off by known factors,
-    over a target with a strongly tensed and a nearly tension-free mould."""
-    rng = np.random.default_rng(3)
-    head = PhysicsHead(np.ones(8), tension_scale=0.02, statistic_weight=2.0)
-    target = torch.from_numpy(rng.uniform(0.0, 1.0, (2, 8, 6, 6)))
-    target[1, I["T"]] *= 1e-4  # a nearly tension-free mould: the floor dominates
-    n_cells = np.array([30.0, 40.0])
-    factors = {"T": 1.10, "Sx2": 0.95, "Sy2": 1.02}
-    pred = target.clone()
-    for f, k in factors.items():
-        pred[:, I[f]] *= k
-    got = head.statistic_error(pred, target, torch.from_numpy(n_cells)).item()
-    terms = []
-    for f, k in factors.items():
-        sim = target[:, I[f]].sum(dim=(1, 2)).numpy()
-        per_cell = 0.02 if f == "T" else 1 / 3
-        terms.append(((k - 1) * sim / (np.abs(sim) + 0.05 * n_cells * per_cell)) ** 2)
-    assert got == pytest.approx(np.mean(terms), rel=1e-12)
-    assert head.statistic_error(target, target, torch.from_numpy(n_cells)).item() == 0.0
-    # the floor: the tension-free mould's 10% error counts for far less than the tensed one's
-    assert terms[0][1] < 1e-2 * terms[0][0]
-    # the loss adds it with its weight; without a weight it is absent
-    out = torch.randn(2, 16, 6, 6, dtype=torch.float64)
-    fields, _ = head.decode(out, torch.from_numpy(n_cells), calibrated=False)
-    with_stat, parts = head.loss(out, target, torch.from_numpy(n_cells))
-    without, parts0 = PhysicsHead(np.ones(8), 0.02).loss(out, target, torch.from_numpy(n_cells))
-    assert "stat" not in parts0
-    assert with_stat.item() == pytest.approx(
-        without.item() + 2.0 * head.statistic_error(fields, target, torch.from_numpy(n_cells)).item())
-    assert PhysicsHead.from_dict(head.to_dict()).statistic_weight == 2.0

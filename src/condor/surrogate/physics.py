@@ -39,12 +39,6 @@ from .data import FIELD_NAMES, PAIRED_FIELDS
 N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
-# Whole-mould statistics the loss can also fit (statistic_weight): each field's sum over the
-# grid, in relative error against the simulated sum. The floor (x N_c x the field's typical
-# value per cell: tension_scale for T, 1/3 for Sx2 and Sy2, the isotropic share of P) keeps
-# the nearly tension-free moulds from dominating.
-STATISTIC_FIELDS = ("T", "Sx2", "Sy2")
-STATISTIC_FLOOR = 0.05
 CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
 TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
 _IDX = {f: i for i, f in enumerate(FIELD_NAMES)}
@@ -61,11 +55,10 @@ class PhysicsHead:
     n_outputs = N_OUTPUTS
 
     def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
-                 spread_factor=None, statistic_weight: float = 0.0):
+                 spread_factor=None):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
         self.tension_scale = float(tension_scale)
         self.nll_weight = float(nll_weight)
-        self.statistic_weight = float(statistic_weight)
         # Per-field factor on the predicted spread, fitted on the validation split after
         # training (calibrate_spread): the training residuals are those of moulds the model
         # has seen, smaller than a new mould's.
@@ -113,43 +106,24 @@ class PhysicsHead:
 
     def loss(self, out: torch.Tensor, target: torch.Tensor, n_cells) -> tuple[torch.Tensor, dict]:
         """Squared error of the mean / field_scale^2, plus nll_weight x the Gaussian NLL of
-        the (detached) residual under the spread; both averaged over pixels and fields. With a
-        statistic_weight, plus that x the mean squared relative error of the whole-mould sums
-        of STATISTIC_FIELDS (`statistic_error`)."""
+        the (detached) residual under the spread; both averaged over pixels and fields."""
         fields, spread = self.decode(out, n_cells, calibrated=False)
         scale = self._scale_tensor(out)
         mse = (((fields - target) / scale) ** 2).mean()
         residual = (target - fields).detach()
         z = residual / spread
         nll = (0.5 * z * z + torch.log(spread / scale)).mean()
-        total, parts = mse + self.nll_weight * nll, {"mse": mse.item(), "nll": nll.item()}
-        if self.statistic_weight:
-            stat = self.statistic_error(fields, target, n_cells)
-            total = total + self.statistic_weight * stat
-            parts["stat"] = stat.item()
-        return total, parts
-
-    def statistic_error(self, fields: torch.Tensor, target: torch.Tensor, n_cells) -> torch.Tensor:
-        """Mean over samples and STATISTIC_FIELDS of ((sum pred - sum sim) / (|sum sim| +
-        STATISTIC_FLOOR x N_c x typical per-cell value))^2."""
-        idx = [_IDX[f] for f in STATISTIC_FIELDS]
-        pred, sim = fields[:, idx].sum(dim=(2, 3)), target[:, idx].sum(dim=(2, 3))
-        per_cell = torch.tensor([self.tension_scale if f == "T" else 1.0 / 3.0
-                                 for f in STATISTIC_FIELDS], dtype=fields.dtype,
-                                device=fields.device).abs()
-        n = torch.as_tensor(n_cells, dtype=fields.dtype, device=fields.device).reshape(-1, 1)
-        return (((pred - sim) / (sim.abs() + STATISTIC_FLOOR * n * per_cell)) ** 2).mean()
+        return mse + self.nll_weight * nll, {"mse": mse.item(), "nll": nll.item()}
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "field_scale": self.field_scale.tolist(),
                 "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
-                "spread_factor": self.spread_factor.tolist(),
-                "statistic_weight": self.statistic_weight}
+                "spread_factor": self.spread_factor.tolist()}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
         return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
-                   d.get("spread_factor"), d.get("statistic_weight", 0.0))
+                   d.get("spread_factor"))
 
     def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
         """Set spread_factor so that, per field, the central `level` interval fields -/+ z
@@ -169,8 +143,7 @@ class PhysicsHead:
         return self.spread_factor
 
 
-def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
-                     statistic_weight: float = 0.0) -> PhysicsHead:
+def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0) -> PhysicsHead:
     """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
     over all pixels (transpose pairs averaged) and sum(T) / sum(P)."""
     indices = np.asarray(indices)
@@ -189,8 +162,7 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
         rms[[_IDX[a], _IDX[b]]] = 0.5 * (rms[_IDX[a]] + rms[_IDX[b]])
     rms = np.where(rms > 0, rms, 1.0)
     tension = sums[_IDX["T"]] / sums[_IDX["P"]]
-    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight,
-                       statistic_weight=statistic_weight)
+    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight)
 
 
 # --- the cell count N_c -----------------------------------------------------------------------

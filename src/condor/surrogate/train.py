@@ -76,8 +76,6 @@ class TrainConfig:
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
     lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
     epoch, so a resumed run follows the same schedule.
-    statistic_weight: weight of the whole-mould sums' relative error (physics head,
-    PhysicsHead.statistic_error) against the mean's squared error.
     """
 
     model: str = "pix2pix"
@@ -105,7 +103,6 @@ class TrainConfig:
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
-    statistic_weight: float = 0.0
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -131,9 +128,6 @@ class TrainConfig:
         if self.model != "unet" and self.loss != "l1":
             raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
-        if self.statistic_weight < 0 or (self.statistic_weight and self.head != "physics"):
-            raise ValueError(f"TrainConfig.statistic_weight {self.statistic_weight} must be >= 0, "
-                             "and > 0 only with head 'physics'")
         if self.head == "physics" and self.scaling != "minmax":
             raise ValueError("TrainConfig: scaling applies to the tanh head only")
         for name in ("epochs", "batch_size", "val_every"):
@@ -298,8 +292,7 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
     split: a FieldScaling (tanh head: min/max, symmetrised when augmenting so that sign flips
     and swaps commute with it; or standard: each field / its RMS) or a PhysicsHead."""
     if cfg.head == "physics":
-        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
-                                statistic_weight=cfg.statistic_weight)
+        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)
@@ -392,7 +385,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
 
 
 def _format_record(r: dict, epochs: int) -> str:
-    parts = [f"epoch {r['epoch']}/{epochs}"] + [f"{k} {r[k]:.4f}" for k in ("l1", "mse", "nll", "stat")
+    parts = [f"epoch {r['epoch']}/{epochs}"] + [f"{k} {r[k]:.4f}" for k in ("l1", "mse", "nll")
                                                    if k in r] + [f"g_loss {r['g_loss']:.4f}"]
     if "d_loss" in r:
         parts.append(f"d_loss {r['d_loss']:.4f}")
