@@ -1,0 +1,83 @@
+"""Paired comparison of surrogate checkpoints on the same test moulds: the ratio of each one's
+field error to the first's, with a bootstrap interval over moulds resampled together (the
+moulds' own difficulty cancels, so much smaller differences resolve than by comparing the two
+separate intervals of bench_surrogate_study.py).
+
+    PYTHONPATH=src python benchmarks/bench_surrogate_paired.py --store STORE \\
+        --replicas REPLICAS.npz REF.pt OTHER.pt [MORE.pt ...] [--csv OUT.csv]
+
+Field error: noise-corrected squared error against the replica mean (condor.estimators),
+each field in units of its RMS over the replicas, as in bench_surrogate_study.py; a ratio
+below 1 means the checkpoint is closer to the expected fields than REF. Per field too.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import torch
+
+from condor.dataset import open_dataset
+from condor.estimators import bootstrap_interval, mse_against_expected
+from condor.surrogate.data import FIELD_NAMES
+from condor.surrogate.predict import Predictor
+
+
+def _ratio(pairs: np.ndarray) -> float:
+    return float(np.sqrt(pairs[:, 1].mean() / pairs[:, 0].mean()))
+
+
+def paired_errors(checkpoints, store, replicas_npz) -> pd.DataFrame:
+    data = np.load(replicas_npz)
+    replicas = data["fields"].astype(np.float64)
+    ds = open_dataset(store)
+    position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
+    pos = [position[int(m)] for m in data["mould_ids"]]
+    inputs = np.asarray(ds["inputs"].isel(sample=pos).values, dtype=np.float32)
+    n_cells = np.asarray(ds["n_cells"].values)[pos]
+    scale = np.sqrt((replicas ** 2).mean(axis=(0, 1, 3, 4)))[None, :, None, None]
+    errors = []  # per checkpoint: (M,) overall and (M, F) per field, corrected
+    for path in checkpoints:
+        raw = Predictor(path)(inputs, n_cells=n_cells).raw.astype(np.float64)
+        overall = mse_against_expected(raw / scale, replicas / scale[:, None]).corrected
+        per_field = mse_against_expected(raw / scale, replicas / scale[:, None],
+                                         per_field=True).corrected
+        errors.append((overall, per_field))
+    rows = []
+    for path, (overall, per_field) in zip(checkpoints[1:], errors[1:]):
+        row = {"reference": Path(checkpoints[0]).stem, "checkpoint": Path(path).stem}
+        est, lo, hi = bootstrap_interval(np.stack([errors[0][0], overall], 1), _ratio)
+        row.update(ratio=est, ratio_lo=lo, ratio_hi=hi,
+                   moulds_better=float(np.mean(overall < errors[0][0])))
+        for f, name in enumerate(FIELD_NAMES):
+            est, lo, hi = bootstrap_interval(np.stack([errors[0][1][:, f], per_field[:, f]], 1),
+                                             _ratio)
+            row.update({f"{name}:ratio": est, f"{name}:lo": lo, f"{name}:hi": hi})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("checkpoints", nargs="+", help="REF.pt first, then the ones to compare")
+    ap.add_argument("--store", required=True)
+    ap.add_argument("--replicas", required=True)
+    ap.add_argument("--csv", help="also write the table here")
+    ap.add_argument("--threads", type=int, default=1)
+    args = ap.parse_args()
+    if len(args.checkpoints) < 2:
+        ap.error("give a reference checkpoint and at least one other")
+    torch.set_num_threads(args.threads)
+    table = paired_errors(args.checkpoints, args.store, args.replicas)
+    if args.csv:
+        table.to_csv(args.csv, index=False)
+    cols = ["reference", "checkpoint", "ratio", "ratio_lo", "ratio_hi", "moulds_better"] + \
+        [f"{n}:ratio" for n in ("P", "T", "Sx2", "Sy2")]
+    print(table[cols].round(3).to_string(index=False))
+
+
+if __name__ == "__main__":
+    main()
