@@ -151,6 +151,9 @@ def fake_inputs(tmp_path):
     pd.DataFrame({"n_train": [50, 100], "epochs": [20, 10], "field_rms": [0.4, 0.3],
                   "field_rms_lo": [0.35, 0.25], "field_rms_hi": [0.45, 0.35],
                   "ceiling_rms": [0.5, 0.5]}).to_csv(d / "surrogate_curve_data.csv", index=False)
+    pd.DataFrame({"reference": ["old"], "checkpoint": ["nodrop"], "ratio": [0.985],
+                  "ratio_lo": [0.953], "ratio_hi": [1.009], "T:ratio": [0.8],
+                  "unshown": [7]}).to_csv(d / "surrogate_recipes_paired.csv", index=False)
     figures = d / "evaluation" / "unet" / "figures"
     figures.mkdir(parents=True)
     png(figures / "unet_eval_statistics.png", seed=9)
@@ -179,7 +182,8 @@ def fake_inputs(tmp_path):
               "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
               "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
               "design_figure": d / "dfig.png", "learning_curves": d / "curves.png",
-              "learning_curve_tables": [d / "surrogate_curve_data.csv"]}
+              "learning_curve_tables": [d / "surrogate_curve_data.csv",
+                                        d / "surrogate_recipes_paired.csv"]}
     assert set(inputs) == set(report.REPORT_INPUTS)
     return inputs, store
 
@@ -201,6 +205,9 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert "closer to the average organisation than one simulation" in summary
     assert "0.881" in summary  # the paper's r beside ours
     assert page.count("<details") >= 4  # galleries and long tables fold away
+    recipes = page[page.index("surrogate_recipes_paired:"):]
+    assert "one row per pair of trained models" in recipes and "nodrop" in recipes
+    assert "unshown" not in page  # only the named columns
     # A missing evaluation figure is an error, not a placeholder.
     (tmp_path / "evaluation" / "unet" / "figures" / "unet_eval_statistics.png").unlink()
     with pytest.raises(report.ReportError, match="figures"):

@@ -65,7 +65,7 @@ def report_inputs(wildcards):
                         f"{EVALUATION}/baselines/figures"],
         "histories": expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
         "learning_curves": rules.learning_curves.output[0],
-        "learning_curve_tables": list(LEARNING_CURVES.values()),
+        "learning_curve_tables": [*LEARNING_CURVES.values(), *RECIPE_TABLES],
         "design_table": rules.design.output.table,
         "design_summary": rules.design.output.summary,
         "design_confirmation": rules.design.output.confirmation,

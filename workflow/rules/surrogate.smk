@@ -123,7 +123,7 @@ FINAL_TARGETS.extend(
 )
 
 
-# The learning curves that chose the default surrogate are measured outside the workflow
+# The learning curves that chose the default surrogate's size are measured outside the workflow
 # (benchmarks/bench_surrogate_curves.py: many trainings) and committed as small tables; the
 # report shows them beside this run's own figures.
 CURVE_TABLES = Path(workflow.basedir) / "docs" / "data"
@@ -132,6 +132,12 @@ LEARNING_CURVES = {  # keyed <curve>_curve: Snakemake reserves some input names 
     for name in ("data", "size", "epochs")
     if (path := CURVE_TABLES / f"surrogate_curve_{name}.csv").exists()
 }
+# The paired recipe study that set the default's training (docs/surrogate.md), as tables.
+RECIPE_TABLES = [
+    str(path)
+    for name in ("recipes", "recipes_paired")
+    if (path := CURVE_TABLES / f"surrogate_{name}.csv").exists()
+]
 
 
 rule learning_curves:
