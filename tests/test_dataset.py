@@ -26,7 +26,7 @@ def store(tmp_path_factory):
     rng = np.random.default_rng(1)
     meta = {"seed": 3, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     for mould in range(6):
-        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta)
+        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
         for r in range(REPLICAS[mould]):
             s = sample_index(REPLICAS, mould, r)
             failed = (mould, r) == (5, 0)

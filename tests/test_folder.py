@@ -83,7 +83,7 @@ def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
     sim = {"sim_seed": 0, "n_cells": 10, "energy": 1.0, "max_force": 0.0, "solver": "hybrid",
            "solver_seconds": 1.0, "hardware": "test"}
     for mould in range(config.n_moulds):
-        write_inputs(store, mould, np.ones((2, 32, 32), np.uint8), meta)
+        write_inputs(store, mould, np.ones((2, 32, 32), np.uint8), meta, lattice=np.zeros((2, 32, 32), np.float32))
         for r in range(replicas[mould]):
             write_sample(store, sample_index(replicas, mould, r),
                          np.ones((8, 32, 32), np.float32), sim, "ok")
@@ -92,3 +92,5 @@ def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
     shutil.rmtree(store / "fields" / "c" / str(sample_index(replicas, test_mould, 1)))
     shutil.rmtree(store / "inputs" / "c" / "0")
     assert store_gaps(store) == {"inputs": {0}, "fields": {0, test_mould}}
+    shutil.rmtree(store / "lattice" / "c" / "1")  # the lattice channels are inputs too
+    assert store_gaps(store) == {"inputs": {0, 1}, "fields": {0, 1, test_mould}}

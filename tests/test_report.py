@@ -167,7 +167,7 @@ def fake_inputs(tmp_path):
     create_store(store, StoreSpec(2, 8, 0, ("train", "test"), {}))
     for i in range(2):
         write_inputs(store, i, np.ones((2, 8, 8), np.uint8),
-                     {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2})
+                     {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}, lattice=np.zeros((2, 8, 8), np.float32))
         write_sample(store, i, np.ones((8, 8, 8), np.float32),
                      {"sim_seed": 1, "n_cells": 100, "energy": 1.0, "max_force": 1e-4,
                       "solver": "hybrid", "solver_seconds": 2.0, "hardware": "test"}, "ok")

@@ -70,11 +70,11 @@ def test_new_store_opens_with_xarray_and_is_empty(tmp_path):
 def test_sample_visible_only_when_status_written(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
-    write_inputs(path, 2, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+    write_inputs(path, 2, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     states = check_store(path).set_index("sample")["state"]
     assert states[2] == "pending" and states[1] == "missing"
     write_sample(path, 2, fake_fields(2), sim_meta(), "ok")
-    write_inputs(path, 3, np.zeros((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+    write_inputs(path, 3, np.zeros((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     write_sample(path, 3, None, sim_meta(), "folded lattice: 12 inverted tetrahedra")
     table = check_store(path, deep=True).set_index("sample")
     assert table.loc[2, "state"] == "ok"
@@ -89,7 +89,7 @@ def test_sample_visible_only_when_status_written(tmp_path):
 def test_existing_store_is_kept_and_mismatch_is_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
-    write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+    write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     assert not create_store(path, spec())  # same spec: kept, data intact
     assert check_store(path)["state"][0] == "pending"
     with pytest.raises(StoreError, match="seed"):
@@ -105,11 +105,11 @@ def test_bad_writes_are_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
     with pytest.raises(StoreError, match="not in the store"):
-        write_inputs(path, 6, np.ones((2, PIXELS, PIXELS)), MOULD_META)
+        write_inputs(path, 6, np.ones((2, PIXELS, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     with pytest.raises(StoreError, match="outside"):
         write_sample(path, 6, fake_fields(0), sim_meta(), "ok")
     with pytest.raises(ValueError, match="shape"):
-        write_inputs(path, 0, np.ones((2, PIXELS + 1, PIXELS)), MOULD_META)
+        write_inputs(path, 0, np.ones((2, PIXELS + 1, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS + 1, PIXELS), np.float32))
     nan_fields = fake_fields(0)
     nan_fields[3, 2, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
@@ -140,7 +140,7 @@ def test_corrupt_chunk_is_reported_not_raised(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
     for sample in (0, 1):
-        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
         write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
     chunk = next((path / "fields" / "c" / "1").rglob("*"))
     while chunk.is_dir():
@@ -152,7 +152,7 @@ def test_corrupt_chunk_is_reported_not_raised(tmp_path):
 
 def _write_one(args):
     path, sample = args
-    write_inputs(path, sample, np.full((2, PIXELS, PIXELS), sample % 2, "uint8"), MOULD_META)
+    write_inputs(path, sample, np.full((2, PIXELS, PIXELS), sample % 2, "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     write_sample(path, sample, fake_fields(sample), sim_meta(n_cells=sample), "ok")
 
 
@@ -187,7 +187,7 @@ def test_inputs_reach_every_replica_and_expected_fields_are_their_mean(tmp_path)
     counts = (1, 3, 1, 1, 1, 2)
     create_store(path, spec(replicas=counts))
     rng = np.random.default_rng(0)
-    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
     replicas = [rng.random((8, PIXELS, PIXELS)).astype("float32") for _ in range(3)]
     for r, fields in enumerate(replicas):
         write_sample(path, sample_index(counts, 1, r), fields, sim_meta(), "ok")
@@ -207,7 +207,7 @@ def _finished(tmp_path, n=4):
     path = tmp_path / "d.zarr"
     create_store(path, spec(n=n))
     for sample in range(n):
-        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META)
+        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
         write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
     return path
 
@@ -220,6 +220,10 @@ def test_a_lost_chunk_is_found_without_decoding(tmp_path):
     assert (table.drop(index=2)["state"] == "ok").all()
     shutil.rmtree(path / "inputs" / "c" / "0")
     assert check_store(path).set_index("sample").loc[0, "lost"] == "inputs"
+    shutil.rmtree(path / "lattice" / "c" / "3")
+    table = check_store(path).set_index("sample")
+    assert table.loc[3, "state"] == "corrupt" and table.loc[3, "lost"] == "lattice"
+    assert table.loc[1, "state"] == "ok"
 
 
 def test_a_flipped_byte_fails_its_checksum(tmp_path):
@@ -248,3 +252,22 @@ def test_edited_metadata_is_found(tmp_path):
     (path / "zarr.json").write_text(json.dumps(root))
     with pytest.raises(StoreError, match="disagree"):
         check_store(path)
+
+
+def test_lattice_channels_round_trip_and_bad_ones_are_refused(tmp_path):
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=2))
+    lattice = np.random.default_rng(0).random((2, PIXELS, PIXELS)).astype(np.float32)
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice)
+    ds = open_store(path)
+    assert ds["lattice"].dims == ("sample", "cell", "y", "x")
+    assert list(ds["cell"].values) == ["mobile", "fixed"]
+    np.testing.assert_array_equal(ds["lattice"].values[1], lattice)
+    bad = lattice.copy()
+    bad[0, 1, 1] = np.nan
+    with pytest.raises(ValueError, match="lattice channels of mould 0 hold NaN"):
+        write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=bad)
+    with pytest.raises(ValueError, match="lattice for mould 0 have shape"):
+        write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META,
+                     lattice=lattice[:1])
+    assert check_store(path).set_index("sample").loc[0, "state"] == "missing"  # nothing written

@@ -122,7 +122,7 @@ def test_reference_ensemble_reads_ok_replicas_from_the_store(tmp_path):
     rng = np.random.default_rng(0)
     meta = {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     for mould in range(5):
-        write_inputs(path, mould, np.ones((2, 8, 8), np.uint8), meta)
+        write_inputs(path, mould, np.ones((2, 8, 8), np.uint8), meta, lattice=np.zeros((2, 8, 8), np.float32))
         for r in range(counts[mould]):
             status = "folded" if (mould, r) == (4, 2) else "ok"
             write_sample(path, sample_index(counts, mould, r),

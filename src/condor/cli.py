@@ -215,11 +215,18 @@ def cmd_predict(args) -> None:
         inputs = input_channels(mould, predictor.native)
         n_cells = None if np.isnan(scene.depth) else \
             n_cells_of_mould(mould.polygon, mould.tethers, scene.depth)  # exact
+        lattice = predictor.lattice_of(mould) if predictor.needs_lattice else None  # exact
     else:
         inputs, n_cells = read_mould_inputs(args.mould, predictor.native, predictor.box), None
+        lattice = None
     if not inputs.any():
         raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
-    prediction = predictor(inputs, n_cells=n_cells)  # None: estimated from the pixels
+    if predictor.needs_lattice and lattice is None:
+        print(f"condor predict: warning: {args.mould} is a picture: the lattice channels this "
+              "checkpoint reads are estimated from its pixels (a mould file gives exact ones)",
+              file=sys.stderr)
+        lattice = predictor.estimate_lattice(inputs)
+    prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
     if out.suffix.lower() == ".png":
         plots.prediction_panels(inputs, prediction, out)
     else:

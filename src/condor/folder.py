@@ -136,10 +136,10 @@ class RunLock:
 
 def store_gaps(store: str | Path) -> dict[str, set[int]]:
     """Moulds whose samples the store lacks: {"inputs": moulds with a replica whose inputs are
-    not ready or whose chunk is gone, "fields": those and the moulds with a replica not yet
+    not ready or whose inputs or lattice chunk is gone, "fields": those and the moulds with a replica not yet
     simulated or whose fields chunk is gone}. No chunk is decompressed (condor.store.check_store)."""
     table = check_store(store)
-    no_inputs = table["state"].eq("missing") | table["lost"].eq("inputs")
+    no_inputs = table["state"].eq("missing") | table["lost"].isin(["inputs", "lattice"])
     no_fields = no_inputs | table["state"].isin(["pending", "corrupt"])
     return {"inputs": set(table.loc[no_inputs, "mould"].astype(int)),
             "fields": set(table.loc[no_fields, "mould"].astype(int))}

@@ -149,21 +149,7 @@ def build_lattice(polygon: Polygon, tethers, depth: float) -> Lattice:
     Raises ValueError for bad input or a mould that holds no mobile cell.
     """
     polygon, tethers, depth = validate_mould(polygon, tethers, depth)
-    xmin, ymin, xmax, ymax = polygon.bounds
-    cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
-    p_lo, p_hi = math.floor((xmin - cx) / HALF) - 1, math.ceil((xmax - cx) / HALF) + 1
-    q_lo, q_hi = math.floor((ymin - cy) / HALF) - 1, math.ceil((ymax - cy) / HALF) + 1
-    n_layers = int(math.floor(depth / HALF + 1e-9)) + 1
-    p, q, r = np.meshgrid(
-        np.arange(p_lo, p_hi + 1), np.arange(q_lo, q_hi + 1), np.arange(n_layers), indexing="ij"
-    )
-    even = (p + q + r) % 2 == 0
-    p, q, r = p[even], q[even], r[even]
-    x, y, z = cx + p * HALF, cy + q * HALF, r * HALF
-    inside = shapely.contains_xy(polygon, x, y)
-    p, q, r, x, y, z = (v[inside] for v in (p, q, r, x, y, z))
-    positions = np.column_stack([x, y, z]).astype(np.float64)
-
+    (p, q, r), (p_lo, p_hi, q_lo, q_hi), n_layers, positions = _sites(polygon, depth)
     fixed, n_empty, n_widened = _post_sites(positions, tethers)
     if np.count_nonzero(~fixed) == 0:
         raise ValueError(f"mould holds no mobile cell (polygon area {polygon.area:.3g} l0^2)")
@@ -194,6 +180,35 @@ def build_lattice(polygon: Polygon, tethers, depth: float) -> Lattice:
         n_empty_tethers=n_empty,
         n_widened_tethers=n_widened,
     )
+
+
+def lattice_sites(polygon: Polygon, tethers, depth: float) -> tuple[np.ndarray, np.ndarray]:
+    """The initial cells of `build_lattice` alone, without bonds: positions (N, 3) and fixed
+    flags (N,), identical to its `positions` and `fixed` (cheap: for the surrogate's inputs)."""
+    polygon, tethers, depth = validate_mould(polygon, tethers, depth)
+    positions = _sites(polygon, depth)[3]
+    return positions, _post_sites(positions, tethers)[0]
+
+
+def _sites(polygon: Polygon, depth: float):
+    """FCC sites in `polygon` x [0, depth]: integer coordinates (p, q, r), their index bounds
+    (p_lo, p_hi, q_lo, q_hi), the number of layers and positions (N, 3), origin at the centre
+    of the polygon's bounding box."""
+    xmin, ymin, xmax, ymax = polygon.bounds
+    cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
+    p_lo, p_hi = math.floor((xmin - cx) / HALF) - 1, math.ceil((xmax - cx) / HALF) + 1
+    q_lo, q_hi = math.floor((ymin - cy) / HALF) - 1, math.ceil((ymax - cy) / HALF) + 1
+    n_layers = int(math.floor(depth / HALF + 1e-9)) + 1
+    p, q, r = np.meshgrid(
+        np.arange(p_lo, p_hi + 1), np.arange(q_lo, q_hi + 1), np.arange(n_layers), indexing="ij"
+    )
+    even = (p + q + r) % 2 == 0
+    p, q, r = p[even], q[even], r[even]
+    x, y, z = cx + p * HALF, cy + q * HALF, r * HALF
+    inside = shapely.contains_xy(polygon, x, y)
+    p, q, r, x, y, z = (v[inside] for v in (p, q, r, x, y, z))
+    positions = np.column_stack([x, y, z]).astype(np.float64)
+    return (p, q, r), (p_lo, p_hi, q_lo, q_hi), n_layers, positions
 
 
 def _post_sites(positions: np.ndarray, tethers: np.ndarray) -> tuple[np.ndarray, int, int]:

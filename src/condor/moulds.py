@@ -763,19 +763,29 @@ def _check_room(name: str, polygon: Polygon, tethers: np.ndarray) -> None:
 # --------------------------------------------------------------------------- rasters, files
 
 
-def input_channels(mould: Mould, pixels: int) -> np.ndarray:
-    """uint8 (2, pixels, pixels) indexed [channel, y, x]: channel 0 "mould" (pixel centre in
-    the polygon and in no tether disk), channel 1 "tether" (centre in a tether disk, exact
-    circles). Pixel centres at (i + 0.5) * box / pixels."""
-    if isinstance(pixels, bool) or not isinstance(pixels, numbers.Integral) or pixels < 1:
-        raise ValueError(f"pixels = {pixels!r} must be a positive integer")
-    centres = (np.arange(pixels) + 0.5) * (mould.box / pixels)
+def input_channels(mould: Mould, pixels: int, supersample: int = 1) -> np.ndarray:
+    """(2, pixels, pixels) indexed [channel, y, x]: channel 0 "mould" (in the polygon and in
+    no tether disk), channel 1 "tether" (in a tether disk, exact circles). Pixel centres at
+    (i + 0.5) * box / pixels.
+
+    supersample 1: uint8 0/1, each pixel judged at its centre (the dataset's `inputs`).
+    supersample k > 1: float32 coverage, the fraction of a k x k grid of sub-pixel centres in
+    each region, so that an outline or a post is placed to 1/k of a pixel (a post of radius
+    1.3 px is a few whole pixels at k = 1, whatever its true size)."""
+    for name, value in (("pixels", pixels), ("supersample", supersample)):
+        if isinstance(value, bool) or not isinstance(value, numbers.Integral) or value < 1:
+            raise ValueError(f"{name} = {value!r} must be a positive integer")
+    k = int(supersample)
+    centres = (np.arange(pixels * k) + 0.5) * (mould.box / (pixels * k))
     x, y = np.meshgrid(centres, centres)  # [y, x]
-    tether = np.zeros((pixels, pixels), dtype=bool)
+    tether = np.zeros(x.shape, dtype=bool)
     for cx, cy, r in np.asarray(mould.tethers).reshape(-1, 3):
         tether |= (x - cx) ** 2 + (y - cy) ** 2 < r * r
     inside = shapely.contains_xy(mould.polygon, x, y)
-    return np.stack([inside & ~tether, tether]).astype(np.uint8)
+    channels = np.stack([inside & ~tether, tether])
+    if k == 1:
+        return channels.astype(np.uint8)
+    return channels.reshape(2, pixels, k, pixels, k).mean(axis=(2, 4), dtype=np.float64).astype(np.float32)
 
 
 def save_json(mould: Mould, path) -> None:

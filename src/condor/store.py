@@ -46,9 +46,10 @@ from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from condor import __version__
 from condor.fields import FIELD_NAMES
+from condor.inputs import LATTICE_CHANNELS
 
 FORMAT = "condor-dataset"
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3  # 3: the lattice channels (`lattice`) beside the masks
 CHANNELS = ("mould", "tether")
 SPLITS = ("train", "val", "test")
 
@@ -178,6 +179,7 @@ def _expected_arrays(spec: StoreSpec) -> dict:
     replicated = int(sum(r > 1 for r in spec.replica_counts))
     arrays = {
         "inputs": ((n, 2, p, p), (1, 2, p, p), "uint8", ("sample", "channel", "y", "x")),
+        "lattice": ((n, 2, p, p), (1, 2, p, p), "float32", ("sample", "cell", "y", "x")),
         "fields": ((n, f, p, p), (1, f, p, p), "float32", ("sample", "field", "y", "x")),
     }
     for name, (dtype, _) in SAMPLE_VARIABLES.items():
@@ -216,6 +218,7 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
         })
         _coordinate(group, "sample", np.arange(spec.n_samples, dtype="int64"))
         _coordinate(group, "channel", np.array(CHANNELS))
+        _coordinate(group, "cell", np.array(LATTICE_CHANNELS))
         _coordinate(group, "field", np.array(FIELD_NAMES))
         replicated = np.flatnonzero(np.asarray(spec.replica_counts) > 1)
         if len(replicated):
@@ -264,7 +267,7 @@ def open_group(path: str | Path, mode: str = "r") -> zarr.Group:
                 f"{path} has store format version {attrs.get('format_version')}, this code "
                 f"reads version {FORMAT_VERSION}: rebuild it (a new `results` folder)"
             )
-        expected = {"sample", "channel", "field", *_expected_arrays(spec_of(group)).keys()}
+        expected = {"sample", "channel", "cell", "field", *_expected_arrays(spec_of(group)).keys()}
         # Consolidated metadata still lists an array whose folder was deleted: look on disk.
         missing = sorted(name for name in expected if not (path / name / "zarr.json").is_file())
         if missing:
@@ -329,17 +332,23 @@ def replica_samples(path: str | Path, mould: int) -> list[int]:
     return [sample_index(counts, mould, r) for r in range(counts[mould])]
 
 
-def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: dict) -> None:
-    """Write one mould's input channels and metadata into every replica, then mark them ready."""
+def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: dict,
+                 lattice: np.ndarray) -> None:
+    """Write one mould's input channels (masks), lattice channels (condor.inputs) and metadata
+    into every replica, then mark them ready."""
     group = open_group(path, mode="r+")
     pixels = group.attrs["pixels"]
-    if inputs.shape != (2, pixels, pixels):
-        raise ValueError(f"inputs for mould {mould} have shape {inputs.shape}, store needs "
-                         f"(2, {pixels}, {pixels})")
+    for name, array in (("inputs", inputs), ("lattice", lattice)):
+        if np.shape(array) != (2, pixels, pixels):
+            raise ValueError(f"{name} for mould {mould} have shape {np.shape(array)}, store "
+                             f"needs (2, {pixels}, {pixels})")
+    if not np.all(np.isfinite(lattice)):
+        raise ValueError(f"lattice channels of mould {mould} hold NaN or inf")
     samples = replica_samples(path, mould)
     with quiet_zarr():
         for i in samples:
             group["inputs"][i] = inputs.astype("uint8")
+            group["lattice"][i] = np.asarray(lattice, dtype="float32")
             for name in MOULD_VARIABLES:
                 group[name][i] = mould_meta[name]
             group["inputs_ready"][i] = 1
@@ -450,7 +459,7 @@ def check_store(path: str | Path, deep: bool = False) -> pd.DataFrame:
     path = Path(path)
     group = open_group(path)
     n = group["sample"].shape[0]
-    present = {name: chunk_indices(path, name) for name in ("inputs", "fields")}
+    present = {name: chunk_indices(path, name) for name in ("inputs", "lattice", "fields")}
     rows = []
     with quiet_zarr():
         cols = {k: _read_each(group[k], n) for k in
@@ -464,6 +473,8 @@ def check_store(path: str | Path, deep: bool = False) -> pd.DataFrame:
                 state = "missing"
             elif i not in present["inputs"]:
                 state, lost = "corrupt", "inputs"
+            elif i not in present["lattice"]:
+                state, lost = "corrupt", "lattice"
             elif status == "":
                 state = "pending"
             elif status == "ok":
@@ -495,6 +506,7 @@ def _read_each(array, n: int) -> list:
 
 def _sample_readable(group, i: int) -> bool:
     try:
-        return bool(np.all(np.isfinite(group["fields"][i]))) and group["inputs"][i].size > 0
+        return (bool(np.all(np.isfinite(group["fields"][i]))) and group["inputs"][i].size > 0
+                and bool(np.all(np.isfinite(group["lattice"][i]))))
     except Exception:
         return False

@@ -167,7 +167,9 @@ class _Evaluator:
         new = [i for i, h in enumerate(hashes) if h not in self.cache]
         new = [i for k, i in enumerate(new) if hashes[i] not in {hashes[j] for j in new[:k]}]
         if new:
-            prediction = self.predictor(np.stack([inputs[i] for i in new]))
+            prediction = self.predictor(np.stack([inputs[i] for i in new]),
+                                        **mould_arguments(self.predictor,
+                                                          [decoded[i].mould for i in new]))
             normalised = np.asarray(prediction.normalised, dtype=np.float64)
             table = self.objective.evaluate(normalised)
             spread = prediction_spread(prediction)
@@ -190,6 +192,13 @@ class _Evaluator:
                               "shrink": d.shrink, "raster": h})
             self.vectors.append(np.array(x, dtype=np.float64))
         return scores
+
+
+def mould_arguments(predictor, moulds) -> dict:
+    """What a predictor takes of moulds beyond their masks (Predictor.mould_arguments: the
+    exact N_c and lattice channels); nothing for one without it (AnalyticPredictor)."""
+    method = getattr(predictor, "mould_arguments", None)
+    return method(moulds) if method is not None else {}
 
 
 def _to_minimise(scores: np.ndarray) -> list[float]:
@@ -375,10 +384,10 @@ def predict_designs(objective: Objective, moulds: list[Mould], predictor,
     if pixels is None:
         raise DesignSearchError(f"predictor {predictor!r} has no native grid size (`native`)")
     inputs = np.stack([input_channels(m, int(pixels)) for m in moulds])
-    if n_cells is None:
-        prediction = predictor(inputs)
-    else:  # a surrogate that conserves cells predicts with each mould's exact count
-        prediction = predictor(inputs, n_cells=np.asarray(n_cells, dtype=np.float64))
+    extra = mould_arguments(predictor, moulds)
+    if n_cells is not None:  # a surrogate that conserves cells predicts with each mould's count
+        extra["n_cells"] = np.asarray(n_cells, dtype=np.float64)
+    prediction = predictor(inputs, **extra)
     normalised = np.asarray(prediction.normalised, dtype=np.float64)
     table = objective.evaluate(normalised)
     table.insert(0, "mould_id", [m.mould_id for m in moulds])

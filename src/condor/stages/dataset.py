@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor import plots
+from condor import inputs as model_inputs, plots
 from condor.config import Config
 from condor.fields import cell_fields
 from condor.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
@@ -86,14 +86,15 @@ def mould_metadata(mould: Mould) -> dict:
 
 def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | None = None) -> list:
     """Generate moulds `ids`; write their geometry to `out_json` and, when `store` is given,
-    their input channels and metadata into the store (every replica)."""
+    their input channels (masks and lattice channels, condor.inputs) and metadata into the
+    store (every replica)."""
     params = config.mould_params()
     moulds = [make_mould(config.scene, config.seed, i, params) for i in ids]
     write_json_atomic(out_json, [m.to_dict() for m in moulds])
     if store is not None:
         for mould in moulds:
             write_inputs(store, mould.mould_id, input_channels(mould, config.scene.pixels),
-                         mould_metadata(mould))
+                         mould_metadata(mould), lattice=model_inputs.of_mould(mould, config.scene))
     log.info("moulds %s written to %s", _span(ids), out_json)
     return moulds
 

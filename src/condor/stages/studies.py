@@ -89,11 +89,13 @@ def _predictor_answers(store, ensemble, checkpoints: dict) -> tuple[list, list]:
     try:
         for name, path in checkpoints.items():
             predictor = Predictor(path, device="cpu")
+            lattice = ensemble.lattice if predictor.needs_lattice else None
             raw, cpu = accuracy_study.time_predictor(
-                lambda k: predictor(inputs[k:k + 1], n_cells=ensemble.n_cells[k:k + 1]).raw,
+                lambda k: predictor(inputs[k:k + 1], n_cells=ensemble.n_cells[k:k + 1],
+                                    lattice=None if lattice is None else lattice[k:k + 1]).raw,
                 len(inputs))
             answers.append(accuracy_study.Answer(name, "surrogate", raw, cpu, predicted=True))
-            spread = predictor(inputs, n_cells=ensemble.n_cells).spread
+            spread = predictor(inputs, n_cells=ensemble.n_cells, lattice=lattice).spread
             if spread is not None:
                 calibration.append((accuracy_study.calibration_row(name, raw, spread, ensemble),
                                     raw, spread))

@@ -54,8 +54,8 @@ def anneal_then_relax(mould, depth: float, budget: float, seed: int,
 @dataclass(frozen=True)
 class Ensemble:
     """Replicas of M moulds: raw fields (M, R, 8, H, W), cell counts N_c (M,), inputs
-    (M, 2, H, W), the pixel side in l0, and per replica (M, R) its CPU seconds and energy per
-    cell."""
+    (M, 2, H, W) (the masks), the pixel side in l0, per replica (M, R) its CPU seconds and
+    energy per cell, and the lattice channels (M, 2, H, W; condor.inputs)."""
 
     moulds: np.ndarray
     raw: np.ndarray
@@ -64,6 +64,7 @@ class Ensemble:
     pixel_size: float
     seconds: np.ndarray
     energy_per_cell: np.ndarray
+    lattice: np.ndarray | None = None
 
     @property
     def normalised(self) -> np.ndarray:
@@ -105,4 +106,5 @@ def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ens
         inputs=ds["inputs"].isel(sample=samples[:, 0]).values,
         pixel_size=float(ds.attrs["pixel_size"]),
         seconds=ds["solver_seconds"].values[flat].reshape(samples.shape),
-        energy_per_cell=(ds["energy"].values[flat] / ds["n_cells"].values[flat]).reshape(samples.shape))
+        energy_per_cell=(ds["energy"].values[flat] / ds["n_cells"].values[flat]).reshape(samples.shape),
+        lattice=ds["lattice"].isel(sample=samples[:, 0]).values if "lattice" in ds else None)

@@ -1,6 +1,7 @@
 """Dataset access for the surrogate: usable samples, [-1, 1] scaling, resampling.
 
-The dataset is an xarray.Dataset with `inputs` (sample, channel, y, x) 0/1, `fields`
+The dataset is an xarray.Dataset with `inputs` (sample, channel, y, x) 0/1, `lattice`
+(sample, cell, y, x; condor.inputs), `fields`
 (sample, field, y, x) float32, `split` and `status` per sample (see docs/surrogate.md).
 Samples are read one at a time (one zarr chunk per sample) unless the selection is small
 enough to hold in memory.
@@ -19,6 +20,8 @@ from condor.store import CHANNELS as CHANNEL_NAMES
 from condor.store import SPLITS  # noqa: F401
 
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
+# What a model reads (TrainConfig.inputs, condor.inputs): the store variable of each kind.
+INPUT_VARIABLES = {"mask": "inputs", "lattice": "lattice"}
 
 
 class DataError(ValueError):
@@ -91,6 +94,33 @@ def resample_masks(masks: np.ndarray, size: int) -> np.ndarray:
     if up:
         return masks.repeat(f, axis=-2).repeat(f, axis=-1)
     return (_block(masks, f).mean(axis=(-3, -1)) >= 0.5).astype(masks.dtype)
+
+
+def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.ndarray:
+    """Model inputs (..., H, W) -> (..., size, size): masks by resample_masks; lattice
+    channels (cells per pixel in column units, a density) by replication up, block means
+    down."""
+    if kind == "mask":
+        return resample_masks(inputs, size)
+    f, up = _factor(inputs.shape[-1], size)
+    if f == 1:
+        return inputs
+    if up:
+        return inputs.repeat(f, axis=-2).repeat(f, axis=-1)
+    return _block(inputs, f).mean(axis=(-3, -1)).astype(inputs.dtype)
+
+
+def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
+    """The inputs a model of `kind` reads for samples `positions`: (S, 2, H, W) float32 from
+    the store variable INPUT_VARIABLES[kind]; DataError when the dataset lacks it."""
+    if kind not in INPUT_VARIABLES:
+        raise ValueError(f"inputs kind {kind!r} is not one of {tuple(INPUT_VARIABLES)}")
+    name = INPUT_VARIABLES[kind]
+    if name not in ds:
+        raise DataError(f"the dataset has no {name!r} variable, which a model with inputs "
+                        f"{kind!r} reads (a store from before format 3?): rebuild the store, "
+                        "or train with inputs 'mask'")
+    return np.asarray(ds[name].isel(sample=np.asarray(positions)).values, dtype=np.float32)
 
 
 def resample_fields(fields: np.ndarray, size: int) -> np.ndarray:
@@ -254,13 +284,18 @@ def compute_scaling(ds, indices: np.ndarray, size: int | None = None, chunk: int
 # --- samples -------------------------------------------------------------------------------
 
 class SampleSource:
-    """Model-ready samples: inputs (2, S, S) float32 0/1 and scaled fields (8, S, S) float32 at
-    the model resolution S. Holds them in memory when they fit in PRELOAD_BYTES, else reads
-    one sample per access."""
+    """Model-ready samples: inputs (2, S, S) float32 (the masks, or the lattice channels:
+    `inputs`, a TrainConfig.inputs kind) and scaled fields (8, S, S) float32 at the model
+    resolution S. Holds them in memory when they fit in PRELOAD_BYTES, else reads one sample
+    per access."""
 
     def __init__(self, ds, indices, scaling: FieldScaling | None, size: int | None = None,
-                 preload: bool | None = None, replica_mean: bool = False):
+                 preload: bool | None = None, replica_mean: bool = False,
+                 inputs: str = "mask"):
         self.ds = ds
+        self.inputs = inputs
+        if len(indices):
+            model_inputs(ds, np.asarray(indices[:1]), inputs)  # a missing variable, named now
         # The target of a sample whose mould has replicas: its fields, or (replica_mean) the
         # mean of the mould's ok replicas (the store's fields_mean).
         self.mean_row = {}
@@ -287,7 +322,7 @@ class SampleSource:
     def _read(self, positions: np.ndarray):
         try:
             sel = self.ds.isel(sample=positions)
-            raw_inputs = np.asarray(sel["inputs"].values, dtype=np.float32)
+            raw_inputs = np.asarray(sel[INPUT_VARIABLES[self.inputs]].values, dtype=np.float32)
             fields = np.asarray(sel["fields"].values, dtype=np.float32)
         except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
             bad = [p for p in np.atleast_1d(positions) if not _readable(self.ds, p)]
@@ -304,7 +339,7 @@ class SampleSource:
         if bad.any():
             raise DataError(f"sample(s) {_named(self.ds, positions[bad])} marked ok hold NaN or "
                             "inf fields (a lost chunk?): run condor check-store")
-        inputs = resample_masks(raw_inputs, self.size)
+        inputs = resample_inputs(raw_inputs, self.size, self.inputs)
         if self.scaling is not None:
             fields = self.scaling.scale(resample_fields(fields, self.size)).astype(np.float32)
         return torch.from_numpy(np.ascontiguousarray(inputs)), torch.from_numpy(np.ascontiguousarray(fields))

@@ -17,7 +17,7 @@ from condor.metrics import (best_worst, correlation_table, mae_frame,  # noqa: F
                             paper_r, statistics_frame)
 
 from .baselines import fit_baselines
-from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, usable_samples
+from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
 from .predict import Predictor
 
 
@@ -128,6 +128,8 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
     n_cells = np.asarray(ds["n_cells"].values)[usable_samples(ds, split)] if "n_cells" in ds else None
     pixel_size = dataset_pixel_size(ds) if pixel_size is None else pixel_size
     predictor = Predictor(checkpoint_path, device=device)
+    lattice = model_inputs(ds, usable_samples(ds, split), "lattice") if predictor.needs_lattice \
+        else None
     modes = modes or list(dict.fromkeys([predictor.mode, "train"]))
     name = name or predictor.state["config"]["model"]
     predictions, seconds = {}, {}
@@ -135,7 +137,7 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
         predictor.mode = mode
         method = f"{name}_{mode}"
         predictions[method], seconds[method] = _timed(
-            lambda: predictor(inputs, n_cells=n_cells).raw, len(inputs))
+            lambda: predictor(inputs, n_cells=n_cells, lattice=lattice).raw, len(inputs))
     if baselines:
         more, more_seconds = baseline_predictions(ds, inputs, pixel_size)
         predictions.update(more)

@@ -28,8 +28,6 @@ gives its measured error).
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import torch
 from torch.nn import functional as F
@@ -175,20 +173,13 @@ def n_cells_of_mould(polygon, tethers, depth: float) -> int:
     return int(build_lattice(polygon, tethers, depth).n_cells)
 
 
-def fcc_sites_per_column(depth: float) -> int:
-    """FCC layers in a slab of `depth` l0 (condor.lattice: (001) layers a/2 apart from z=0)."""
-    from condor.lattice import HALF
-
-    return int(math.floor(depth / HALF + 1e-9)) + 1
-
-
 def estimate_n_cells(inputs: np.ndarray, pixel_size: float, depth: float) -> np.ndarray | float:
     """N_c estimated from input channels (2, H, W) or (S, 2, H, W) (mould, tether; 0/1): the
     FCC sites of condor.lattice.build_lattice (origin at the centre of the occupied pixels'
-    bounding box) whose (x, y) falls in an occupied pixel. Exact up to the pixelation of the
-    outline (measured error in docs/surrogate.md); prefer n_cells_of_mould when the geometry
-    is known."""
-    from condor.lattice import HALF
+    bounding box) whose (x, y) falls in an occupied pixel (condor.inputs.mask_sites). Exact up
+    to the pixelation of the outline (measured error in docs/surrogate.md); prefer
+    n_cells_of_mould when the geometry is known."""
+    from condor.inputs import mask_sites
 
     inputs = np.asarray(inputs)
     single = inputs.ndim == 3
@@ -197,28 +188,7 @@ def estimate_n_cells(inputs: np.ndarray, pixel_size: float, depth: float) -> np.
         raise ValueError(f"inputs must be (2, H, W) or (S, 2, H, W), got shape {inputs.shape}")
     if not (np.isfinite(pixel_size) and pixel_size > 0 and np.isfinite(depth) and depth > 0):
         raise ValueError(f"pixel_size ({pixel_size}) and depth ({depth}) must be positive")
-    n_layers = fcc_sites_per_column(depth)
-    out = np.zeros(len(batch))
-    for s, channels in enumerate(batch):
-        occupied = channels.astype(bool).any(axis=0)  # [y, x]
-        if not occupied.any():
-            continue
-        ys, xs = np.nonzero(occupied)
-        cx = 0.5 * (xs.min() + xs.max() + 1) * pixel_size
-        cy = 0.5 * (ys.min() + ys.max() + 1) * pixel_size
-        h, w = occupied.shape
-        p = np.arange(math.floor(-cx / HALF) - 1, math.ceil((w * pixel_size - cx) / HALF) + 2)
-        q = np.arange(math.floor(-cy / HALF) - 1, math.ceil((h * pixel_size - cy) / HALF) + 2)
-        pp, qq = np.meshgrid(p, q, indexing="ij")
-        col = np.floor((cx + pp * HALF) / pixel_size).astype(int)
-        row = np.floor((cy + qq * HALF) / pixel_size).astype(int)
-        valid = (col >= 0) & (col < w) & (row >= 0) & (row < h)
-        hit = np.zeros_like(valid)
-        hit[valid] = occupied[row[valid], col[valid]]
-        # layer r holds the sites with p + q + r even
-        even = (pp + qq) % 2 == 0
-        n_even_layers, n_odd_layers = (n_layers + 1) // 2, n_layers // 2
-        out[s] = n_even_layers * np.count_nonzero(hit & even) + n_odd_layers * np.count_nonzero(hit & ~even)
+    out = np.array([mask_sites(channels, pixel_size, depth)[1].sum() for channels in batch])
     return float(out[0]) if single else out
 
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -14,7 +15,7 @@ from condor.store import quiet_zarr
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
 from .data import (FIELD_NAMES, N_SYMMETRIES, FieldScaling, apply_symmetry, resample_fields,
-                   resample_masks)
+                   resample_inputs)
 from .models import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells
 
@@ -56,8 +57,9 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, 
 
 def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "eval",
               batch_size: int = 16, device=None, symmetrise: bool = False,
-              n_cells=None) -> tuple[np.ndarray, np.ndarray | None]:
-    """Inputs (S, 2, H, W) 0/1 at the native resolution -> (physical fields (S, 8, H, W),
+              n_cells=None, inputs_kind: str = "mask") -> tuple[np.ndarray, np.ndarray | None]:
+    """Model inputs (S, 2, H, W) at the native resolution (0/1 masks, or lattice channels:
+    `inputs_kind`) -> (physical fields (S, 8, H, W),
     spread (S, 8, H, W) or None) float32 at the native resolution. The model runs at its own
     resolution (inputs resampled nearest, outputs resampled conserving sums; spreads as
     variances). Modes other than "eval" depend on the batch, so they run one sample at a time
@@ -82,7 +84,7 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
     with prediction_mode(model, mode), torch.no_grad():
         for start in range(0, inputs.shape[0], batch_size):
             part = slice(start, start + batch_size)
-            x = resample_masks(np.asarray(inputs[part], dtype=np.float32), size)
+            x = resample_inputs(np.asarray(inputs[part], dtype=np.float32), size, inputs_kind)
             x = torch.from_numpy(np.ascontiguousarray(x)).to(device)
             cells = n_cells[part] if physics else None
             y, spread = _symmetrised(model, scaling, x, cells) if symmetrise else \
@@ -123,6 +125,8 @@ class Predictor:
         self.scaling = scaling_from_checkpoint(state)
         self.native = int(state["data"]["native_size"])
         self.mode = mode or state["config"].get("prediction_mode", "eval")
+        # what the network reads (TrainConfig.inputs); checkpoints from before it read masks
+        self.inputs_kind = state["config"].get("inputs", "mask")
         self.symmetrise = state["config"].get("symmetrise", False) if symmetrise is None \
             else bool(symmetrise)
         self.state = state
@@ -143,6 +147,50 @@ class Predictor:
         return self.state["data"].get("depth")
 
     @property
+    def sigma(self) -> float:
+        """The fields' kernel width (l0) of the training scene."""
+        from condor.scenes import SIGMA_L0
+
+        return float(self.state["data"].get("sigma") or SIGMA_L0)
+
+    @property
+    def needs_lattice(self) -> bool:
+        """True when the network reads the lattice channels (condor.inputs), not the masks."""
+        return self.inputs_kind == "lattice"
+
+    def lattice_of(self, mould) -> np.ndarray:
+        """The exact lattice channels (2, H, W) of a condor.moulds.Mould on the training grid."""
+        from condor.inputs import lattice_channels
+
+        if self.box is None or self.depth is None:
+            raise ValueError(f"checkpoint {self.path!r} records no pixel size or depth")
+        return lattice_channels(mould.polygon, mould.tethers, self.depth, self.box, self.native,
+                                self.sigma)
+
+    def estimate_lattice(self, inputs: np.ndarray) -> np.ndarray:
+        """Lattice channels from masks alone (condor.inputs.estimate_lattice_channels):
+        approximate; a mould's geometry gives the exact ones (lattice_of)."""
+        from condor.inputs import estimate_lattice_channels
+
+        if self.pixel_size is None or self.depth is None:
+            raise ValueError(f"checkpoint {self.path!r} records no pixel size or depth; pass "
+                             "lattice")
+        return estimate_lattice_channels(inputs, self.pixel_size, self.depth, self.sigma)
+
+    def mould_arguments(self, moulds) -> dict:
+        """Keyword arguments of __call__ for condor.moulds.Mould objects beyond their masks:
+        each mould's exact N_c and, for a lattice checkpoint, its lattice channels."""
+        from condor.lattice import lattice_sites
+
+        if self.depth is None:
+            return {}
+        extra = {"n_cells": np.array([len(lattice_sites(m.polygon, m.tethers, self.depth)[0])
+                                      for m in moulds], dtype=np.float64)}
+        if self.needs_lattice:
+            extra["lattice"] = np.stack([self.lattice_of(m) for m in moulds])
+        return extra
+
+    @property
     def needs_n_cells(self) -> bool:
         """True when the checkpoint's output is built on the mould's cell count N_c."""
         return getattr(self.scaling, "kind", None) == "physics"
@@ -154,10 +202,13 @@ class Predictor:
                              "n_cells")
         return estimate_n_cells(inputs, self.pixel_size, self.depth)
 
-    def __call__(self, inputs, batch_size: int = 16, n_cells=None) -> Prediction:
-        """Predict for inputs (2, H, W) or (S, 2, H, W). `n_cells`: N_c per mould (a number or
-        (S,)), the lattice count (physics.n_cells_of_mould, or the store's `n_cells`); when
-        None and the checkpoint needs it, it is estimated from the inputs."""
+    def __call__(self, inputs, batch_size: int = 16, n_cells=None, lattice=None) -> Prediction:
+        """Predict for inputs (2, H, W) or (S, 2, H, W) (the masks). `n_cells`: N_c per mould
+        (a number or (S,)), the lattice count (physics.n_cells_of_mould, or the store's
+        `n_cells`); when None and the checkpoint needs it, it is estimated from the inputs.
+        `lattice`: the lattice channels, same shape (the store's `lattice`, lattice_of(mould),
+        or mould_arguments); when None and the checkpoint reads them, they are estimated from
+        the masks (estimate_lattice: less accurate, with a warning)."""
         inputs = np.asarray(inputs)
         single = inputs.ndim == 3
         batch = inputs[None] if single else inputs
@@ -171,8 +222,18 @@ class Predictor:
                 np.broadcast_to(np.asarray(n_cells, dtype=np.float64), (len(batch),))
         else:
             n_cells = None
-        raw, spread = run_model(self.model, self.scaling, batch, self.mode, batch_size,
-                                self.device, self.symmetrise, n_cells)
+        if self.needs_lattice:
+            if lattice is None:
+                warnings.warn(f"checkpoint {self.path!r} reads the lattice channels; estimating "
+                              "them from the mask pixels (pass lattice= from the mould's "
+                              "geometry for the exact ones)", stacklevel=2)
+                network_inputs = self.estimate_lattice(batch)
+            else:
+                network_inputs = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
+        else:
+            network_inputs = batch
+        raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,
+                                self.device, self.symmetrise, n_cells, self.inputs_kind)
         normalised, sums = normalise_predicted(raw), density_sums(raw)
         if single:
             return Prediction(raw[0], normalised[0], float(sums[0]),

@@ -43,10 +43,15 @@ def synthetic_dataset(n: int = 8, size: int = 32, seed: int = 0,
                       gaussian_blur(occ * x, sigma_px)], axis=1)  # (n, 3, H, W)
     fields = np.einsum("fk,skyx->sfyx", _MIX, basis).astype(np.float32)
     split = np.array([splits[i % len(splits)] for i in range(n)])
+    # a stand-in for the lattice channels (condor.inputs): the masks at the kernel's blur
+    lattice = np.stack([gaussian_blur(masks[:, c].astype(float), sigma_px) for c in range(2)],
+                       axis=1).astype(np.float32)
     return xr.Dataset(
         {"inputs": (("sample", "channel", "y", "x"), masks),
+         "lattice": (("sample", "cell", "y", "x"), lattice),
          "fields": (("sample", "field", "y", "x"), fields),
          "split": ("sample", split), "status": ("sample", np.array(["ok"] * n)),
          "n_cells": ("sample", np.rint(fields[:, 0].sum(axis=(1, 2))).astype(np.int64))},
-        coords={"sample": np.arange(n), "channel": list(CHANNEL_NAMES), "field": list(FIELD_NAMES)},
+        coords={"sample": np.arange(n), "channel": list(CHANNEL_NAMES), "field": list(FIELD_NAMES),
+                "cell": ["mobile", "fixed"]},
         attrs={"pixel_size": 15.625 / size})

@@ -23,9 +23,11 @@ import torch
 from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
+from condor.inputs import INPUT_KINDS
+
 from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, dataset_pixel_size,
-                   usable_samples)
+                   model_inputs, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, fit_physics_head, tissue_mask
@@ -76,6 +78,9 @@ class TrainConfig:
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
     lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
     epoch, so a resumed run follows the same schedule.
+    inputs: what the network reads of a mould (condor.inputs.INPUT_KINDS): "mask" (the
+    paper's two 0/1 masks, the store's `inputs`) or "lattice" (its initial cells rasterised,
+    the store's `lattice`).
     """
 
     model: str = "pix2pix"
@@ -103,6 +108,7 @@ class TrainConfig:
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
+    inputs: str = "mask"
 
     def __post_init__(self):
         if isinstance(self.unet, dict):
@@ -117,7 +123,7 @@ class TrainConfig:
                              f"of {PREDICTION_MODES}")
         for name, allowed in (("head", HEADS), ("loss", LOSSES), ("scaling", SCALINGS),
                               ("loss_region", LOSS_REGIONS), ("replicas", REPLICA_USES),
-                              ("lr_schedule", LR_SCHEDULES)):
+                              ("lr_schedule", LR_SCHEDULES), ("inputs", INPUT_KINDS)):
             if getattr(self, name) not in allowed:
                 raise ValueError(f"TrainConfig.{name} {getattr(self, name)!r} is not one of {allowed}")
         if (self.head == "physics") != (self.loss == "gaussian"):
@@ -278,12 +284,13 @@ def validation_mae(G, scaling, source: SampleSource, mode: str, device,
     if len(source) == 0:
         return float("nan")
     items = np.arange(len(source))
-    inputs = np.asarray(source.ds["inputs"].isel(sample=source.indices).values, dtype=np.float32)
+    inputs = model_inputs(source.ds, source.indices, source.inputs)
     pred, spread = run_model(G, scaling, inputs, mode, device=device, symmetrise=symmetrise,
-                             n_cells=source.n_cells)
+                             n_cells=source.n_cells, inputs_kind=source.inputs)
     truth = source.native_fields(items)
     if spread is not None:
-        scaling.calibrate_spread(pred, spread, truth, inputs.astype(bool).any(axis=1))
+        masks = model_inputs(source.ds, source.indices, "mask")
+        scaling.calibrate_spread(pred, spread, truth, masks.astype(bool).any(axis=1))
     return float(np.abs(pred - truth).mean())
 
 
@@ -341,8 +348,8 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
         else:
             scaling, history, start = output_map(cfg, dataset, train_idx, G.cfg.size), [], 0
         train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size,
-                                 replica_mean=cfg.replicas == "mean")
-        val_src = SampleSource(dataset, val_idx, None, native, preload=False)
+                                 replica_mean=cfg.replicas == "mean", inputs=cfg.inputs)
+        val_src = SampleSource(dataset, val_idx, None, native, preload=False, inputs=cfg.inputs)
         for epoch in range(start, cfg.epochs):
             t0 = time.perf_counter()
             torch.manual_seed(_epoch_seed(cfg.seed, epoch))

@@ -1,0 +1,119 @@
+"""What the surrogate sees of a mould: the mask channels, or the lattice channels.
+
+The paper's inputs are two 0/1 masks (`condor.moulds.input_channels`: mould, tether), each
+pixel judged at its centre. They hide what sets the tension: a post is a few whole pixels at
+64 px (tether radii 1.3-4 px), and a tether narrower than a/2 anchors the posts picked within
+a/2 (`condor.lattice`), so the number of fixed cells it holds is not in the picture at all.
+The *lattice channels* are the simulation's own starting point instead: the initial cells of
+`condor.lattice.build_lattice` (mobile, fixed) rasterised with the fields' kernel
+(`condor.fields.rasterise`), per pixel in units of a full FCC column (`column_cells`), so the
+inside of a mould reads ~1 whatever the scene. They place the outline and every post to a
+fraction of a pixel, and their sum times the column unit is N_c. Measured in
+docs/surrogate.md ("The inputs"): the tension field's error falls by a third.
+
+A mould known only as a picture has no lattice; `estimate_lattice_channels` places the same
+FCC sites over the occupied pixels (as `physics.estimate_n_cells` counts them): approximate,
+and measured worse than the masks themselves for training, so the workflow stores the exact
+channels (`lattice` in the dataset store) and prediction from a mould file builds them.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+INPUT_KINDS = ("mask", "lattice")  # TrainConfig.inputs
+LATTICE_CHANNELS = ("mobile", "fixed")
+
+
+def fcc_layers(depth: float) -> int:
+    """FCC (001) layers in a slab of `depth` l0 (condor.lattice: layers a/2 apart from z=0)."""
+    from condor.lattice import HALF
+
+    return int(math.floor(depth / HALF + 1e-9)) + 1
+
+
+def column_cells(depth: float, pixel_size: float) -> float:
+    """Cells per pixel of a full FCC column of `depth` (the lattice channels' unit): the
+    projected site density n_layers / 2 per HALF^2, times the pixel area."""
+    from condor.lattice import HALF
+
+    return 0.5 * fcc_layers(depth) * (pixel_size / HALF) ** 2
+
+
+def rasterise_cells(xy: np.ndarray, weights: np.ndarray, depth: float, box: float,
+                    pixels: int, sigma: float) -> np.ndarray:
+    """Cells at `xy` (N, 2) with per-channel weights (N, 2) -> lattice channels (2, P, P)
+    float32 in column units."""
+    from condor.fields import rasterise
+
+    image = rasterise(np.asarray(xy, np.float64), np.asarray(weights, np.float64), box, pixels,
+                      sigma)
+    return (image / column_cells(depth, box / pixels)).astype(np.float32)
+
+
+def lattice_channels(polygon, tethers, depth: float, box: float, pixels: int,
+                     sigma: float) -> np.ndarray:
+    """(2, pixels, pixels) float32 [channel, y, x]: the mould's initial mobile and fixed cells
+    (condor.lattice.lattice_sites) rasterised like the fields, in column units."""
+    from condor.lattice import lattice_sites
+
+    positions, fixed = lattice_sites(polygon, tethers, depth)
+    weights = np.stack([~fixed, fixed], axis=1).astype(np.float64)
+    return rasterise_cells(positions[:, :2], weights, depth, box, pixels, sigma)
+
+
+def of_mould(mould, scene) -> np.ndarray:
+    """The lattice channels of a `condor.moulds.Mould` on `scene`'s grid."""
+    return lattice_channels(mould.polygon, mould.tethers, scene.depth, scene.box, scene.pixels,
+                            scene.sigma)
+
+
+def mask_sites(masks: np.ndarray, pixel_size: float, depth: float):
+    """FCC site columns over the occupied pixels of masks (2, H, W) (mould, tether): xy (K, 2)
+    of the columns whose (x, y) falls in an occupied pixel, their cell count (K,) and whether
+    the pixel is a tether's (K,). The origin is the centre of the occupied pixels' bounding
+    box (condor.lattice puts it at the polygon's)."""
+    from condor.lattice import HALF
+
+    occupied = masks.astype(bool).any(axis=0)  # [y, x]
+    if not occupied.any():
+        return np.zeros((0, 2)), np.zeros(0), np.zeros(0, bool)
+    ys, xs = np.nonzero(occupied)
+    cx = 0.5 * (xs.min() + xs.max() + 1) * pixel_size
+    cy = 0.5 * (ys.min() + ys.max() + 1) * pixel_size
+    h, w = occupied.shape
+    p = np.arange(math.floor(-cx / HALF) - 1, math.ceil((w * pixel_size - cx) / HALF) + 2)
+    q = np.arange(math.floor(-cy / HALF) - 1, math.ceil((h * pixel_size - cy) / HALF) + 2)
+    pp, qq = np.meshgrid(p, q, indexing="ij")
+    x, y = cx + pp * HALF, cy + qq * HALF
+    col = np.floor(x / pixel_size).astype(int)
+    row = np.floor(y / pixel_size).astype(int)
+    valid = (col >= 0) & (col < w) & (row >= 0) & (row < h)
+    hit = np.zeros_like(valid)
+    hit[valid] = occupied[row[valid], col[valid]]
+    tether = np.zeros_like(valid)
+    tether[valid] = masks[1].astype(bool)[row[valid], col[valid]]
+    # layer r holds the sites with p + q + r even
+    n_layers = fcc_layers(depth)
+    count = np.where((pp + qq) % 2 == 0, (n_layers + 1) // 2, n_layers // 2)
+    return np.stack([x[hit], y[hit]], axis=1), count[hit].astype(np.float64), tether[hit]
+
+
+def estimate_lattice_channels(masks: np.ndarray, pixel_size: float, depth: float,
+                              sigma: float) -> np.ndarray:
+    """Approximate lattice channels from masks (2, H, W) or (S, 2, H, W) alone (mask_sites;
+    tether pixels hold the fixed cells). Exact lattice channels need the geometry."""
+    masks = np.asarray(masks)
+    batch = masks[None] if masks.ndim == 3 else masks
+    if batch.ndim != 4 or batch.shape[1] != 2:
+        raise ValueError(f"masks must be (2, H, W) or (S, 2, H, W), got shape {masks.shape}")
+    pixels = batch.shape[-1]
+    out = np.zeros(batch.shape, dtype=np.float32)
+    for s, channels in enumerate(batch):
+        xy, count, tether = mask_sites(channels, pixel_size, depth)
+        if len(count):
+            weights = np.stack([count * ~tether, count * tether], axis=1)
+            out[s] = rasterise_cells(xy, weights, depth, pixel_size * pixels, pixels, sigma)
+    return out[0] if masks.ndim == 3 else out
