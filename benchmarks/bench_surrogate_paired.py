@@ -22,7 +22,7 @@ import torch
 
 from condor.dataset import open_dataset
 from condor.estimators import bootstrap_interval, mse_against_expected
-from condor.surrogate.data import FIELD_NAMES
+from condor.surrogate.data import FIELD_NAMES, model_inputs
 from condor.surrogate.predict import Predictor
 
 
@@ -30,25 +30,42 @@ def _ratio(pairs: np.ndarray) -> float:
     return float(np.sqrt(pairs[:, 1].mean() / pairs[:, 0].mean()))
 
 
+def predict_replica_moulds(path, ds, mould_ids) -> np.ndarray:
+    """A checkpoint's raw prediction (M, 8, H, W) for the moulds `mould_ids` of `ds` (their
+    replica-0 samples), with the store's N_c and, for a lattice checkpoint, its `lattice`."""
+    position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
+    pos = [position[int(m)] for m in mould_ids]
+    predictor = Predictor(path)
+    lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
+    return predictor(model_inputs(ds, pos, "mask"), n_cells=np.asarray(ds["n_cells"].values)[pos],
+                     lattice=lattice).raw.astype(np.float64)
+
+
+def field_errors(raw, replicas) -> tuple[np.ndarray, np.ndarray]:
+    """Corrected squared errors (M,) and per field (M, F), each field in units of its RMS over
+    the replicas."""
+    scale = np.sqrt((replicas ** 2).mean(axis=(0, 1, 3, 4)))[None, :, None, None]
+    overall = mse_against_expected(raw / scale, replicas / scale[:, None]).corrected
+    per_field = mse_against_expected(raw / scale, replicas / scale[:, None],
+                                     per_field=True).corrected
+    return overall, per_field
+
+
 def paired_errors(checkpoints, store, replicas_npz) -> pd.DataFrame:
     data = np.load(replicas_npz)
     replicas = data["fields"].astype(np.float64)
     ds = open_dataset(store)
-    position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
-    pos = [position[int(m)] for m in data["mould_ids"]]
-    inputs = np.asarray(ds["inputs"].isel(sample=pos).values, dtype=np.float32)
-    n_cells = np.asarray(ds["n_cells"].values)[pos]
-    scale = np.sqrt((replicas ** 2).mean(axis=(0, 1, 3, 4)))[None, :, None, None]
-    errors = []  # per checkpoint: (M,) overall and (M, F) per field, corrected
-    for path in checkpoints:
-        raw = Predictor(path)(inputs, n_cells=n_cells).raw.astype(np.float64)
-        overall = mse_against_expected(raw / scale, replicas / scale[:, None]).corrected
-        per_field = mse_against_expected(raw / scale, replicas / scale[:, None],
-                                         per_field=True).corrected
-        errors.append((overall, per_field))
+    errors = [field_errors(predict_replica_moulds(path, ds, data["mould_ids"]), replicas)
+              for path in checkpoints]
+    return paired_rows([Path(c).stem for c in checkpoints], errors)
+
+
+def paired_rows(names, errors) -> pd.DataFrame:
+    """One row per name after the first: the ratio of its field error to the first's (overall
+    and per field) with its paired bootstrap interval over moulds."""
     rows = []
-    for path, (overall, per_field) in zip(checkpoints[1:], errors[1:]):
-        row = {"reference": Path(checkpoints[0]).stem, "checkpoint": Path(path).stem}
+    for name, (overall, per_field) in zip(names[1:], errors[1:]):
+        row = {"reference": names[0], "checkpoint": name}
         est, lo, hi = bootstrap_interval(np.stack([errors[0][0], overall], 1), _ratio)
         row.update(ratio=est, ratio_lo=lo, ratio_hi=hi,
                    moulds_better=float(np.mean(overall < errors[0][0])))

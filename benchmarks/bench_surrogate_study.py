@@ -36,7 +36,7 @@ from condor.fields import mould_statistics
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.data import FIELD_NAMES, usable_samples
+from condor.surrogate.data import FIELD_NAMES, model_inputs, usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import train_config
@@ -139,7 +139,8 @@ def recalibrate_spread(predictor, ds) -> None:
     inputs = np.asarray(ds["inputs"].isel(sample=val).values, dtype=np.float32)
     truth = np.asarray(ds["fields"].isel(sample=val).values, dtype=np.float64)
     predictor.scaling.spread_factor = np.ones(len(FIELD_NAMES))
-    p = predictor(inputs, n_cells=np.asarray(ds["n_cells"].values)[val])
+    p = predictor(inputs, n_cells=np.asarray(ds["n_cells"].values)[val],
+                  lattice=model_inputs(ds, val, "lattice") if predictor.needs_lattice else None)
     predictor.scaling.calibrate_spread(p.raw, p.spread, truth, inputs.astype(bool).any(axis=1))
 
 
@@ -155,6 +156,7 @@ def evaluate_checkpoint(checkpoint, ds, replicas_npz, modes, symmetrise_options,
     pixel_size = float(ds.attrs["pixel_size"])
     scale = np.sqrt((replicas ** 2).mean(axis=(0, 1, 3, 4)))
     predictor = Predictor(checkpoint)
+    lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
     rows = []
     for mode in modes:
         for symmetrise in symmetrise_options:
@@ -162,7 +164,7 @@ def evaluate_checkpoint(checkpoint, ds, replicas_npz, modes, symmetrise_options,
             if recalibrate and predictor.needs_n_cells:
                 recalibrate_spread(predictor, ds)
             t0 = time.perf_counter()
-            p = predictor(inputs, n_cells=n_cells)
+            p = predictor(inputs, n_cells=n_cells, lattice=lattice)
             seconds = (time.perf_counter() - t0) / len(inputs)
             rows.append({"mode": mode, "symmetrise": symmetrise, "predict_s_per_mould": seconds,
                          "spread_factor": json.dumps(np.round(getattr(predictor.scaling, "spread_factor", np.ones(1)), 4).tolist()),

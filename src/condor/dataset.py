@@ -8,7 +8,9 @@ it, feed it to PyTorch, and read its card.
     loader = torch.utils.data.DataLoader(condor.dataset.torch_dataset(ds, "train"), batch_size=8)
 
 Layout (DESIGN.md "The dataset contract", condor.store): `inputs` (sample, channel, y, x) 0/1
-with channels mould, tether; `fields` (sample, field, y, x) float32, the 8 un-normalised fields
+with channels mould, tether; `lattice` (sample, cell, y, x) float32, the mould's initial mobile
+and fixed cells rasterised with the fields' kernel in units of a full FCC column
+(condor.inputs: what the default surrogate reads); `fields` (sample, field, y, x) float32, the 8 un-normalised fields
 P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz; per-sample metadata; for moulds simulated with several
 seeds, `fields_mean` and `fields_std` (replicated, field, y, x). A `README.md` dataset card
 (`write_card`) sits beside the store.
@@ -142,8 +144,10 @@ def card(store, config: dict | None = None) -> str:
         "",
         "Cell-laden hydrogels in tethered moulds, simulated with the CONDOR contractile-network "
         "model (Andrews, Dickinson and Hague) and rasterised into 8 fields per mould: the "
-        "input channels (mould, tether) and the fields P (density), T (tension), Sx2, Sy2, "
-        "Sz2, SxSy, SxSz, SySz (orientation tensor), un-normalised pixel sums.",
+        "input channels (mould, tether; 0/1), the lattice channels `lattice` (the initial "
+        "mobile and fixed cells rasterised with the fields' kernel, in units of a full FCC "
+        "column) and the fields P (density), T (tension), Sx2, Sy2, Sz2, SxSy, SxSz, SySz "
+        "(orientation tensor), un-normalised pixel sums.",
         "",
         "## Scene and model",
         "",
