@@ -8,8 +8,8 @@ fields of the replica moulds, paired against the first kind (docs/surrogate.md "
     PYTHONPATH=src python benchmarks/bench_surrogate_inputs.py table --replicas REPLICAS.npz \\
         --out DIR mask coverage lattice estimated
 
-KIND is mask | coverage | lattice | estimated. The network reads the store variable of its
-TrainConfig.inputs; coverage and estimated replace the store's `lattice` in memory by
+KIND is mask | coverage | lattice | estimated | both (masks and lattice channels, 4 input
+channels). The network reads the store variables of its TrainConfig.inputs; coverage and estimated replace the store's `lattice` in memory by
 `condor.moulds.input_channels(mould, pixels, 8)` and `condor.inputs.estimate_lattice_channels`
 of the masks, so every kind runs the same code. Each run writes DIR/KIND.pt and
 DIR/KIND_pred.npz (raw predictions of the replica moulds); `table` prints and writes
@@ -39,7 +39,7 @@ from condor.surrogate.data import dataset_pixel_size  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 
-KINDS = ("mask", "coverage", "lattice", "estimated")
+KINDS = ("mask", "coverage", "lattice", "estimated", "both")
 # the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
@@ -50,7 +50,7 @@ SUPERSAMPLE = 8
 
 def inputs_of_kind(ds, kind: str, moulds_dir: str | None):
     """`ds` whose `lattice` variable holds what a network of `kind` reads."""
-    if kind in ("mask", "lattice"):
+    if kind in ("mask", "lattice", "both"):
         return ds
     if kind == "estimated":
         scene = ds.attrs["scene"]
@@ -74,7 +74,7 @@ def run(args) -> None:
     ds = inputs_of_kind(study_dataset(args.store, data["mould_ids"], None), args.kind,
                         args.moulds)
     settings = {**DEFAULT, **json.loads(args.settings or "{}"), "num_threads": args.threads,
-                "inputs": "mask" if args.kind == "mask" else "lattice"}
+                "inputs": args.kind if args.kind in ("mask", "both") else "lattice"}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / f"{args.kind}.pt"

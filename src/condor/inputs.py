@@ -23,7 +23,7 @@ import math
 
 import numpy as np
 
-INPUT_KINDS = ("mask", "lattice")  # TrainConfig.inputs
+INPUT_KINDS = ("mask", "lattice", "both")  # TrainConfig.inputs; both: masks, then lattice
 LATTICE_CHANNELS = ("mobile", "fixed")
 
 

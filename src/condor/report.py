@@ -174,8 +174,9 @@ REPORT_INPUTS = {
     "evaluations": "evaluation folders, one per variant and one for the baselines",
     "histories": "training history per variant (CSV)",
     "learning_curves": "the surrogate's learning curves (PNG, measured outside the run)",
-    "learning_curve_tables": ("the learning curves' and the recipe study's tables "
-                              "(docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv)"),
+    "learning_curve_tables": ("the learning curves', the recipe study's and the inputs "
+                              "study's tables (docs/data/surrogate_curve_*.csv, "
+                              "surrogate_recipes*.csv, surrogate_inputs*.csv)"),
     "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
     "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
     "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
@@ -429,7 +430,7 @@ def _surrogate_section(config, inp) -> Section:
         last = history.tail(1)
         blocks.append(table(last, f"{Path(path).stem}: the last epoch of training "
                                   f"({len(history)} epochs in all).", digits=4))
-    curve_columns = ("name", "reference", "checkpoint", "n_train", "parameters", "epochs",
+    curve_columns = ("name", "kind", "reference", "checkpoint", "n_train", "parameters", "epochs",
                      "field_rms", "field_rms_lo", "field_rms_hi", "ceiling_rms", "ratio",
                      "ratio_lo", "ratio_hi", "P:ratio", "T:ratio", "T:rms", "mean_T:r",
                      "mean_T:bias", "mean_Sx2:r", "mean_Sx2:bias", "n_P_gt_0.2:bias",
@@ -448,7 +449,8 @@ def _surrogate_section(config, inp) -> Section:
                       "against the expected fields of the test moulds, with its 95% interval, "
                       "against training moulds (same optimiser steps), model size and epochs; "
                       "dashed, one simulation's error (the ceiling)."),
-               folded("Learning curves and the recipe study: the tables", curve_tables)]
+               folded("Learning curves, the recipe study and the inputs study: the tables",
+                      curve_tables)]
     for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
         figures = sorted(folder.glob("*.png"))
         if not figures:

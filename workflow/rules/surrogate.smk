@@ -132,10 +132,11 @@ LEARNING_CURVES = {  # keyed <curve>_curve: Snakemake reserves some input names 
     for name in ("data", "size", "epochs")
     if (path := CURVE_TABLES / f"surrogate_curve_{name}.csv").exists()
 }
-# The paired recipe study that set the default's training (docs/surrogate.md), as tables.
+# The paired recipe study that set the default's training and the inputs study that set what
+# it reads (docs/surrogate.md), as tables.
 RECIPE_TABLES = [
     str(path)
-    for name in ("recipes", "recipes_paired")
+    for name in ("recipes", "recipes_paired", "inputs", "inputs_paired")
     if (path := CURVE_TABLES / f"surrogate_{name}.csv").exists()
 ]
 

@@ -20,8 +20,9 @@ from condor.store import CHANNELS as CHANNEL_NAMES
 from condor.store import SPLITS  # noqa: F401
 
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
-# What a model reads (TrainConfig.inputs, condor.inputs): the store variable of each kind.
-INPUT_VARIABLES = {"mask": "inputs", "lattice": "lattice"}
+# What a model reads (TrainConfig.inputs, condor.inputs): the store variables of each kind,
+# two channels each, in this order.
+INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice")}
 
 
 class DataError(ValueError):
@@ -97,9 +98,12 @@ def resample_masks(masks: np.ndarray, size: int) -> np.ndarray:
 
 
 def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.ndarray:
-    """Model inputs (..., H, W) -> (..., size, size): masks by resample_masks; lattice
-    channels (cells per pixel in column units, a density) by replication up, block means
-    down."""
+    """Model inputs (..., C, H, W) of `kind` -> (..., C, size, size): masks by
+    resample_masks; lattice channels (cells per pixel in column units, a density) by
+    replication up, block means down."""
+    if kind == "both":
+        return np.concatenate([resample_masks(inputs[..., :2, :, :], size),
+                               resample_inputs(inputs[..., 2:, :, :], size, "lattice")], axis=-3)
     if kind == "mask":
         return resample_masks(inputs, size)
     f, up = _factor(inputs.shape[-1], size)
@@ -111,16 +115,18 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
 
 
 def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
-    """The inputs a model of `kind` reads for samples `positions`: (S, 2, H, W) float32 from
-    the store variable INPUT_VARIABLES[kind]; DataError when the dataset lacks it."""
+    """The inputs a model of `kind` reads for samples `positions`: (S, C, H, W) float32 from
+    the store variables INPUT_VARIABLES[kind]; DataError when the dataset lacks one."""
     if kind not in INPUT_VARIABLES:
         raise ValueError(f"inputs kind {kind!r} is not one of {tuple(INPUT_VARIABLES)}")
-    name = INPUT_VARIABLES[kind]
-    if name not in ds:
-        raise DataError(f"the dataset has no {name!r} variable, which a model with inputs "
-                        f"{kind!r} reads (a store from before format 3?): rebuild the store, "
-                        "or train with inputs 'mask'")
-    return np.asarray(ds[name].isel(sample=np.asarray(positions)).values, dtype=np.float32)
+    for name in INPUT_VARIABLES[kind]:
+        if name not in ds:
+            raise DataError(f"the dataset has no {name!r} variable, which a model with inputs "
+                            f"{kind!r} reads (a store from before format 3?): rebuild the "
+                            "store, or train with inputs 'mask'")
+    sel = ds.isel(sample=np.asarray(positions))
+    return np.concatenate([np.asarray(sel[name].values, dtype=np.float32)
+                           for name in INPUT_VARIABLES[kind]], axis=-3)
 
 
 def resample_fields(fields: np.ndarray, size: int) -> np.ndarray:
@@ -322,7 +328,8 @@ class SampleSource:
     def _read(self, positions: np.ndarray):
         try:
             sel = self.ds.isel(sample=positions)
-            raw_inputs = np.asarray(sel[INPUT_VARIABLES[self.inputs]].values, dtype=np.float32)
+            raw_inputs = np.concatenate([np.asarray(sel[name].values, dtype=np.float32)
+                                         for name in INPUT_VARIABLES[self.inputs]], axis=-3)
             fields = np.asarray(sel["fields"].values, dtype=np.float32)
         except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
             bad = [p for p in np.atleast_1d(positions) if not _readable(self.ds, p)]

@@ -156,7 +156,7 @@ class Predictor:
     @property
     def needs_lattice(self) -> bool:
         """True when the network reads the lattice channels (condor.inputs), not the masks."""
-        return self.inputs_kind == "lattice"
+        return self.inputs_kind in ("lattice", "both")
 
     def lattice_of(self, mould) -> np.ndarray:
         """The exact lattice channels (2, H, W) of a condor.moulds.Mould on the training grid."""
@@ -230,6 +230,8 @@ class Predictor:
                 network_inputs = self.estimate_lattice(batch)
             else:
                 network_inputs = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
+            if self.inputs_kind == "both":
+                network_inputs = np.concatenate([batch.astype(np.float32), network_inputs], axis=1)
         else:
             network_inputs = batch
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,

@@ -27,7 +27,7 @@ from condor.inputs import INPUT_KINDS
 
 from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, dataset_pixel_size,
-                   model_inputs, usable_samples)
+                   INPUT_VARIABLES, model_inputs, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, fit_physics_head, tissue_mask
@@ -79,8 +79,8 @@ class TrainConfig:
     lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
     epoch, so a resumed run follows the same schedule.
     inputs: what the network reads of a mould (condor.inputs.INPUT_KINDS): "mask" (the
-    paper's two 0/1 masks, the store's `inputs`) or "lattice" (its initial cells rasterised,
-    the store's `lattice`).
+    paper's two 0/1 masks, the store's `inputs`), "lattice" (its initial cells rasterised,
+    the store's `lattice`) or "both" (the four channels).
     """
 
     model: str = "pix2pix"
@@ -143,8 +143,10 @@ class TrainConfig:
     def networks(self, native_size: int) -> tuple[UNetConfig, PatchConfig | None]:
         """Generator and discriminator configs for data of `native_size` px."""
         if self.model == "pix2pix":
-            return UNetConfig.paper(), PatchConfig()
+            return replace(UNetConfig.paper(), in_channels=2 * len(INPUT_VARIABLES[self.inputs])), \
+                PatchConfig(in_channels=2 * len(INPUT_VARIABLES[self.inputs]) + len(FIELD_NAMES))
         unet = self.unet or UNetConfig.for_size(native_size)
+        unet = replace(unet, in_channels=2 * len(INPUT_VARIABLES[self.inputs]))
         if self.head == "physics":
             unet = replace(unet, out_channels=PhysicsHead.n_outputs, output="linear",
                            detached_outputs=PhysicsHead.n_outputs - len(FIELD_NAMES)
