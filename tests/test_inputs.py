@@ -114,16 +114,18 @@ def test_supersampled_masks_measure_coverage():
         input_channels(disk, 20, 0)
 
 
-def test_a_lattice_model_reads_the_lattice_variable(tmp_path):
+@pytest.mark.parametrize("kind", ["lattice", "both"])
+def test_a_lattice_model_reads_the_lattice_variable(tmp_path, kind):
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
-    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs="lattice",
+    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs=kind,
                       unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), epochs=1,
                       batch_size=4, lr=2e-3)
     path = tmp_path / "lat.pt"
     train(ds, cfg, path, log=lambda _: None)
     predictor = Predictor(path)
     assert predictor.needs_lattice
+    assert predictor.model.cfg.in_channels == (2 if kind == "lattice" else 4)
     test = usable_samples(ds, "test")
     masks = ds["inputs"].values[test]
     lattice = ds["lattice"].values[test]
