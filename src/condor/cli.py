@@ -198,7 +198,6 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_predict(args) -> None:
-    from condor.surrogate.physics import n_cells_of_mould
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
     out = Path(args.out)
@@ -213,9 +212,8 @@ def cmd_predict(args) -> None:
         for warning in training_domain_check(mould, scene):
             print(f"condor predict: warning: {warning}", file=sys.stderr)
         inputs = input_channels(mould, predictor.native)
-        n_cells = None if np.isnan(scene.depth) else \
-            n_cells_of_mould(mould.polygon, mould.tethers, scene.depth)  # exact
-        lattice = predictor.lattice_of(mould) if predictor.needs_lattice else None  # exact
+        exact = predictor.mould_arguments([mould])  # N_c and lattice channels, when known
+        n_cells, lattice = exact.get("n_cells"), exact.get("lattice")
     else:
         inputs, n_cells = read_mould_inputs(args.mould, predictor.native, predictor.box), None
         lattice = None

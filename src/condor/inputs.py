@@ -27,17 +27,10 @@ INPUT_KINDS = ("mask", "lattice", "both")  # TrainConfig.inputs; both: masks, th
 LATTICE_CHANNELS = ("mobile", "fixed")
 
 
-def fcc_layers(depth: float) -> int:
-    """FCC (001) layers in a slab of `depth` l0 (condor.lattice: layers a/2 apart from z=0)."""
-    from condor.lattice import HALF
-
-    return int(math.floor(depth / HALF + 1e-9)) + 1
-
-
 def column_cells(depth: float, pixel_size: float) -> float:
     """Cells per pixel of a full FCC column of `depth` (the lattice channels' unit): the
     projected site density n_layers / 2 per HALF^2, times the pixel area."""
-    from condor.lattice import HALF
+    from condor.lattice import HALF, fcc_layers
 
     return 0.5 * fcc_layers(depth) * (pixel_size / HALF) ** 2
 
@@ -59,7 +52,12 @@ def lattice_channels(polygon, tethers, depth: float, box: float, pixels: int,
     (condor.lattice.lattice_sites) rasterised like the fields, in column units."""
     from condor.lattice import lattice_sites
 
-    positions, fixed = lattice_sites(polygon, tethers, depth)
+    return channels_of_sites(*lattice_sites(polygon, tethers, depth), depth, box, pixels, sigma)
+
+
+def channels_of_sites(positions: np.ndarray, fixed: np.ndarray, depth: float, box: float,
+                      pixels: int, sigma: float) -> np.ndarray:
+    """The lattice channels of cells already placed (condor.lattice.lattice_sites)."""
     weights = np.stack([~fixed, fixed], axis=1).astype(np.float64)
     return rasterise_cells(positions[:, :2], weights, depth, box, pixels, sigma)
 
@@ -75,7 +73,7 @@ def mask_sites(masks: np.ndarray, pixel_size: float, depth: float):
     of the columns whose (x, y) falls in an occupied pixel, their cell count (K,) and whether
     the pixel is a tether's (K,). The origin is the centre of the occupied pixels' bounding
     box (condor.lattice puts it at the polygon's)."""
-    from condor.lattice import HALF
+    from condor.lattice import HALF, fcc_layers
 
     occupied = masks.astype(bool).any(axis=0)  # [y, x]
     if not occupied.any():

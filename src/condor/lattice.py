@@ -182,6 +182,11 @@ def build_lattice(polygon: Polygon, tethers, depth: float) -> Lattice:
     )
 
 
+def fcc_layers(depth: float) -> int:
+    """FCC (001) layers in a slab of `depth` l0: layers a/2 apart from z = 0."""
+    return int(math.floor(depth / HALF + 1e-9)) + 1
+
+
 def lattice_sites(polygon: Polygon, tethers, depth: float) -> tuple[np.ndarray, np.ndarray]:
     """The initial cells of `build_lattice` alone, without bonds: positions (N, 3) and fixed
     flags (N,), identical to its `positions` and `fixed` (cheap: for the surrogate's inputs)."""
@@ -198,7 +203,7 @@ def _sites(polygon: Polygon, depth: float):
     cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
     p_lo, p_hi = math.floor((xmin - cx) / HALF) - 1, math.ceil((xmax - cx) / HALF) + 1
     q_lo, q_hi = math.floor((ymin - cy) / HALF) - 1, math.ceil((ymax - cy) / HALF) + 1
-    n_layers = int(math.floor(depth / HALF + 1e-9)) + 1
+    n_layers = fcc_layers(depth)
     p, q, r = np.meshgrid(
         np.arange(p_lo, p_hi + 1), np.arange(q_lo, q_hi + 1), np.arange(n_layers), indexing="ij"
     )

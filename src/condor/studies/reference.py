@@ -107,4 +107,4 @@ def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ens
         pixel_size=float(ds.attrs["pixel_size"]),
         seconds=ds["solver_seconds"].values[flat].reshape(samples.shape),
         energy_per_cell=(ds["energy"].values[flat] / ds["n_cells"].values[flat]).reshape(samples.shape),
-        lattice=ds["lattice"].isel(sample=samples[:, 0]).values if "lattice" in ds else None)
+        lattice=ds["lattice"].isel(sample=samples[:, 0]).values)

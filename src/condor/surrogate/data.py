@@ -114,9 +114,8 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     return _block(inputs, f).mean(axis=(-3, -1)).astype(inputs.dtype)
 
 
-def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
-    """The inputs a model of `kind` reads for samples `positions`: (S, C, H, W) float32 from
-    the store variables INPUT_VARIABLES[kind]; DataError when the dataset lacks one."""
+def check_input_variables(ds, kind: str) -> None:
+    """ValueError for an unknown kind, DataError when `ds` lacks a variable `kind` reads."""
     if kind not in INPUT_VARIABLES:
         raise ValueError(f"inputs kind {kind!r} is not one of {tuple(INPUT_VARIABLES)}")
     for name in INPUT_VARIABLES[kind]:
@@ -124,9 +123,18 @@ def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
             raise DataError(f"the dataset has no {name!r} variable, which a model with inputs "
                             f"{kind!r} reads (a store from before format 3?): rebuild the "
                             "store, or train with inputs 'mask'")
-    sel = ds.isel(sample=np.asarray(positions))
+
+
+def _input_arrays(sel, kind: str) -> np.ndarray:
     return np.concatenate([np.asarray(sel[name].values, dtype=np.float32)
                            for name in INPUT_VARIABLES[kind]], axis=-3)
+
+
+def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
+    """The inputs a model of `kind` reads for samples `positions`: (S, C, H, W) float32 from
+    the store variables INPUT_VARIABLES[kind]; DataError when the dataset lacks one."""
+    check_input_variables(ds, kind)
+    return _input_arrays(ds.isel(sample=np.asarray(positions)), kind)
 
 
 def resample_fields(fields: np.ndarray, size: int) -> np.ndarray:
@@ -300,8 +308,7 @@ class SampleSource:
                  inputs: str = "mask"):
         self.ds = ds
         self.inputs = inputs
-        if len(indices):
-            model_inputs(ds, np.asarray(indices[:1]), inputs)  # a missing variable, named now
+        check_input_variables(ds, inputs)  # a missing variable, named before any reading
         # The target of a sample whose mould has replicas: its fields, or (replica_mean) the
         # mean of the mould's ok replicas (the store's fields_mean).
         self.mean_row = {}
@@ -328,8 +335,7 @@ class SampleSource:
     def _read(self, positions: np.ndarray):
         try:
             sel = self.ds.isel(sample=positions)
-            raw_inputs = np.concatenate([np.asarray(sel[name].values, dtype=np.float32)
-                                         for name in INPUT_VARIABLES[self.inputs]], axis=-3)
+            raw_inputs = _input_arrays(sel, self.inputs)
             fields = np.asarray(sel["fields"].values, dtype=np.float32)
         except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
             bad = [p for p in np.atleast_1d(positions) if not _readable(self.ds, p)]

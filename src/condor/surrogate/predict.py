@@ -180,14 +180,18 @@ class Predictor:
     def mould_arguments(self, moulds) -> dict:
         """Keyword arguments of __call__ for condor.moulds.Mould objects beyond their masks:
         each mould's exact N_c and, for a lattice checkpoint, its lattice channels."""
+        from condor.inputs import channels_of_sites
         from condor.lattice import lattice_sites
 
         if self.depth is None:
             return {}
-        extra = {"n_cells": np.array([len(lattice_sites(m.polygon, m.tethers, self.depth)[0])
-                                      for m in moulds], dtype=np.float64)}
+        sites = [lattice_sites(m.polygon, m.tethers, self.depth) for m in moulds]
+        extra = {"n_cells": np.array([len(positions) for positions, _ in sites], np.float64)}
         if self.needs_lattice:
-            extra["lattice"] = np.stack([self.lattice_of(m) for m in moulds])
+            if self.box is None:
+                raise ValueError(f"checkpoint {self.path!r} records no pixel size")
+            extra["lattice"] = np.stack([channels_of_sites(*s, self.depth, self.box, self.native,
+                                                           self.sigma) for s in sites])
         return extra
 
     @property

@@ -142,11 +142,11 @@ class TrainConfig:
 
     def networks(self, native_size: int) -> tuple[UNetConfig, PatchConfig | None]:
         """Generator and discriminator configs for data of `native_size` px."""
+        n_inputs = 2 * len(INPUT_VARIABLES[self.inputs])  # two channels per store variable
         if self.model == "pix2pix":
-            return replace(UNetConfig.paper(), in_channels=2 * len(INPUT_VARIABLES[self.inputs])), \
-                PatchConfig(in_channels=2 * len(INPUT_VARIABLES[self.inputs]) + len(FIELD_NAMES))
-        unet = self.unet or UNetConfig.for_size(native_size)
-        unet = replace(unet, in_channels=2 * len(INPUT_VARIABLES[self.inputs]))
+            return replace(UNetConfig.paper(), in_channels=n_inputs), \
+                PatchConfig(in_channels=n_inputs + len(FIELD_NAMES))
+        unet = replace(self.unet or UNetConfig.for_size(native_size), in_channels=n_inputs)
         if self.head == "physics":
             unet = replace(unet, out_channels=PhysicsHead.n_outputs, output="linear",
                            detached_outputs=PhysicsHead.n_outputs - len(FIELD_NAMES)
@@ -291,7 +291,8 @@ def validation_mae(G, scaling, source: SampleSource, mode: str, device,
                              n_cells=source.n_cells, inputs_kind=source.inputs)
     truth = source.native_fields(items)
     if spread is not None:
-        masks = model_inputs(source.ds, source.indices, "mask")
+        masks = inputs[:, :2] if source.inputs in ("mask", "both") else \
+            model_inputs(source.ds, source.indices, "mask")  # masks first when it reads them
         scaling.calibrate_spread(pred, spread, truth, masks.astype(bool).any(axis=1))
     return float(np.abs(pred - truth).mean())
 
