@@ -72,6 +72,62 @@ def test_loss_minimiser_is_the_mean_and_the_spread_the_std():
     np.testing.assert_allclose(spread[0, I["T"]].numpy(), draws.std(0), rtol=0.02)
 
 
+def test_tension_sum_term_targets_the_median_ratio(monkeypatch):
+    """With sum_weight, fit one image to draws whose tension is one pattern times a lognormal
+    factor: the fitted sum(T) + floor is sqrt(sum(t') / sum(1 / t')) over the draws' sums
+    t' = sum(T) + floor, the minimiser of sum((p' - t')^2 / (p' t')), which for a lognormal
+    is its median; the pixel error's mean (exp(s^2 / 2) x median) and the relative squared
+    error's minimiser (exp(-1.5 s^2) x median) are both far from it."""
+    from condor.surrogate import physics
+
+    monkeypatch.setattr(physics, "SUM_HUBER", 1e9)  # the quadratic loss, for the closed form
+    rng = np.random.default_rng(1)
+    scale = np.ones(8)
+    scale[I["T"]] = 1e4  # the pixel error of T vanishes: the sum term alone sets sum(T)
+    head = PhysicsHead(scale, tension_scale=1.0, sum_weight=1.0)
+    n_cells = torch.full((400,), 16.0, dtype=torch.float64)
+    factor = np.exp(rng.normal(0.0, 0.5, size=400))
+    pattern = np.linspace(0.5, 2.0, 16).reshape(4, 4)
+    target = torch.zeros(400, 8, 4, 4, dtype=torch.float64)
+    target[:, I["P"]] = 1.0
+    target[:, I["T"]] = torch.from_numpy(factor[:, None, None] * pattern)
+    target[:, I["Sx2"]] = target[:, I["Sy2"]] = target[:, I["Sz2"]] = 1 / 3
+    out = torch.zeros(1, 16, 4, 4, dtype=torch.float64, requires_grad=True)
+    opt = torch.optim.LBFGS([out], max_iter=500, tolerance_grad=1e-12, tolerance_change=1e-15,
+                            line_search_fn="strong_wolfe")
+
+    def closure():
+        opt.zero_grad()
+        loss, _ = head.loss(out.expand(400, -1, -1, -1), target, n_cells)
+        loss.backward()
+        return loss
+
+    opt.step(closure)
+    _, parts = head.loss(out.expand(400, -1, -1, -1), target, n_cells)
+    floor = physics.SUM_FLOOR * 1.0 * 16.0
+    with torch.no_grad():
+        fitted = head.decode(out, n_cells[:1])[0][0, I["T"]].sum().item() + floor
+    sums = factor * pattern.sum() + floor
+    expected = np.sqrt(sums.sum() / (1 / sums).sum())
+    assert fitted == pytest.approx(expected, rel=2e-3)
+    assert abs(fitted / sums.mean() - 1) > 0.08
+    assert abs(fitted / ((1 / sums).sum() / (1 / sums ** 2).sum()) - 1) > 0.2
+    assert "sum_T" in parts
+
+
+def test_tension_sum_term_is_finite_for_zero_and_negative_sums():
+    head = PhysicsHead(np.ones(8), tension_scale=0.02, sum_weight=1.0)
+    out = torch.randn(2, 16, 6, 6, dtype=torch.float64)
+    out[:, 1] = -5.0  # negative predicted tension
+    target = torch.zeros(2, 8, 6, 6, dtype=torch.float64)
+    target[:, I["P"]] = 1.0
+    target[1, I["T"]] = -1e-3  # a compressed mould: negative sum(T)
+    loss, parts = head.loss(out, target, torch.tensor([36.0, 36.0], dtype=torch.float64))
+    assert torch.isfinite(loss) and parts["sum_T"] > 0
+    baseline, _ = PhysicsHead(np.ones(8), tension_scale=0.02).loss(out, target, [36.0, 36.0])
+    assert loss.item() > baseline.item()
+
+
 def test_cell_count_of_a_pixel_aligned_rectangle_is_exact():
     pixel, depth = 0.5, 4.0
     inputs = np.zeros((2, 40, 40), dtype=np.uint8)
@@ -181,6 +237,12 @@ def test_config_rejects_inconsistent_heads():
         TrainConfig(model="unet", loss="gaussian")
     with pytest.raises(ValueError, match="needs model 'unet'"):
         TrainConfig(model="unet_l1", head="physics", loss="gaussian")
+    with pytest.raises(ValueError, match="sum_weight.*needs head 'physics'"):
+        TrainConfig(model="unet_l1", sum_weight=1.0)
+    with pytest.raises(ValueError, match="sum_weight = -1"):
+        TrainConfig(model="unet", head="physics", loss="gaussian", sum_weight=-1.0)
+    with pytest.raises(ValueError, match="sum_weight must be finite"):
+        PhysicsHead(np.ones(8), 1.0, sum_weight=float("nan"))
     with pytest.raises(ValueError, match="upsample 'cubic'"):
         UNetConfig(size=32, depth=3, upsample="cubic")
 

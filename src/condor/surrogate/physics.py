@@ -21,6 +21,12 @@ squared error of the mean, per field divided by s_f^2 (its minimiser is the cond
 the expected field, unlike L1's median), plus the Gaussian negative log-likelihood of the
 residual under the spread with the mean detached (so the spread never pulls the mean).
 
+With sum_weight > 0 the loss adds, per mould, the Huber loss of the relative error of its
+total tension: (sum T - sum T') / sqrt((|sum T| + f)(|sum T'| + f)), f = SUM_FLOOR x tau_0 x
+N_c (T' the target). A mould's tension per cell spans 400x over the training moulds
+(tau_0 x [0.01, 5]), so the pixel error alone weighs low-tension moulds by almost nothing and
+shrinks their mean T towards the average (docs/surrogate.md "The mould's total tension").
+
 N_c of a mould is its lattice site count (`n_cells_of_mould`); for a bare input image,
 `estimate_n_cells` counts the same FCC sites over the occupied pixels (docs/surrogate.md
 gives its measured error).
@@ -37,6 +43,8 @@ from .data import FIELD_NAMES, PAIRED_FIELDS
 N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
+SUM_FLOOR = 0.05  # tension per cell, in units of tau_0, below which sum(T)'s error is absolute
+SUM_HUBER = 0.1  # relative sum(T) error above which its loss grows linearly
 CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
 TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
 _IDX = {f: i for i, f in enumerate(FIELD_NAMES)}
@@ -53,10 +61,11 @@ class PhysicsHead:
     n_outputs = N_OUTPUTS
 
     def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
-                 spread_factor=None):
+                 spread_factor=None, sum_weight: float = 0.0):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
         self.tension_scale = float(tension_scale)
         self.nll_weight = float(nll_weight)
+        self.sum_weight = float(sum_weight)
         # Per-field factor on the predicted spread, fitted on the validation split after
         # training (calibrate_spread): the training residuals are those of moulds the model
         # has seen, smaller than a new mould's.
@@ -65,6 +74,8 @@ class PhysicsHead:
         if self.field_scale.shape != (len(FIELD_NAMES),) or np.any(self.field_scale <= 0):
             raise ValueError(f"field_scale must be {len(FIELD_NAMES)} positive values, got "
                              f"{self.field_scale}")
+        if not (np.isfinite(self.sum_weight) and self.sum_weight >= 0):
+            raise ValueError(f"sum_weight must be finite and >= 0, got {sum_weight}")
         if not (np.isfinite(self.tension_scale) and self.tension_scale != 0):
             raise ValueError(f"tension_scale must be finite and non-zero, got {tension_scale}")
 
@@ -104,24 +115,41 @@ class PhysicsHead:
 
     def loss(self, out: torch.Tensor, target: torch.Tensor, n_cells) -> tuple[torch.Tensor, dict]:
         """Squared error of the mean / field_scale^2, plus nll_weight x the Gaussian NLL of
-        the (detached) residual under the spread; both averaged over pixels and fields."""
+        the (detached) residual under the spread, both averaged over pixels and fields, plus
+        sum_weight x the batch mean of the Huber loss of each mould's relative error in sum(T)."""
         fields, spread = self.decode(out, n_cells, calibrated=False)
         scale = self._scale_tensor(out)
         mse = (((fields - target) / scale) ** 2).mean()
         residual = (target - fields).detach()
         z = residual / spread
         nll = (0.5 * z * z + torch.log(spread / scale)).mean()
-        return mse + self.nll_weight * nll, {"mse": mse.item(), "nll": nll.item()}
+        loss = mse + self.nll_weight * nll
+        parts = {"mse": mse.item(), "nll": nll.item()}
+        if self.sum_weight > 0:
+            t = _IDX["T"]
+            floor = SUM_FLOOR * abs(self.tension_scale) * torch.as_tensor(
+                n_cells, dtype=out.dtype, device=out.device).reshape(-1)
+            true_sum = target[:, t].sum(dim=(1, 2))
+            pred_sum = fields[:, t].sum(dim=(1, 2))
+            # the error relative to the geometric mean of the two sums: its minimiser is the
+            # median ratio of the target; relative to |true_sum| alone it would be shrunk low
+            relative = (pred_sum - true_sum) / torch.sqrt((pred_sum.abs() + floor)
+                                                          * (true_sum.abs() + floor))
+            # Huber: a few moulds far off early in training must not outweigh the pixel error
+            sum_error = F.huber_loss(relative, torch.zeros_like(relative), delta=SUM_HUBER)
+            loss = loss + self.sum_weight * sum_error
+            parts["sum_T"] = sum_error.item()
+        return loss, parts
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "field_scale": self.field_scale.tolist(),
                 "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
-                "spread_factor": self.spread_factor.tolist()}
+                "spread_factor": self.spread_factor.tolist(), "sum_weight": self.sum_weight}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
         return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
-                   d.get("spread_factor"))
+                   d.get("spread_factor"), d.get("sum_weight", 0.0))
 
     def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
         """Set spread_factor so that, per field, the central `level` interval fields -/+ z
@@ -141,7 +169,8 @@ class PhysicsHead:
         return self.spread_factor
 
 
-def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0) -> PhysicsHead:
+def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
+                     sum_weight: float = 0.0) -> PhysicsHead:
     """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
     over all pixels (transpose pairs averaged) and sum(T) / sum(P)."""
     indices = np.asarray(indices)
@@ -160,7 +189,7 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0) -> P
         rms[[_IDX[a], _IDX[b]]] = 0.5 * (rms[_IDX[a]] + rms[_IDX[b]])
     rms = np.where(rms > 0, rms, 1.0)
     tension = sums[_IDX["T"]] / sums[_IDX["P"]]
-    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight)
+    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight, sum_weight=sum_weight)
 
 
 # --- the cell count N_c -----------------------------------------------------------------------

@@ -73,6 +73,7 @@ class TrainConfig:
     (each field divided by its RMS, linear output); tanh head only.
     loss_region: "all" pixels or "tissue" (the mould and tethers dilated by the kernel reach).
     nll_weight: weight of the spread's NLL against the mean's squared error (physics head).
+    sum_weight: weight of each mould's relative error in sum(T) (physics head; 0 leaves it out).
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
@@ -105,6 +106,7 @@ class TrainConfig:
     scaling: str = "minmax"
     loss_region: str = "all"
     nll_weight: float = 1.0
+    sum_weight: float = 0.0
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
@@ -134,6 +136,11 @@ class TrainConfig:
         if self.model != "unet" and self.loss != "l1":
             raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
+        if not (math.isfinite(self.sum_weight) and self.sum_weight >= 0):
+            raise ValueError(f"TrainConfig.sum_weight = {self.sum_weight} must be finite and >= 0")
+        if self.sum_weight > 0 and self.head != "physics":
+            raise ValueError(f"TrainConfig.sum_weight = {self.sum_weight} needs head 'physics' "
+                             f"(got {self.head!r})")
         if self.head == "physics" and self.scaling != "minmax":
             raise ValueError("TrainConfig: scaling applies to the tanh head only")
         for name in ("epochs", "batch_size", "val_every"):
@@ -302,7 +309,8 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
     split: a FieldScaling (tanh head: min/max, symmetrised when augmenting so that sign flips
     and swaps commute with it; or standard: each field / its RMS) or a PhysicsHead."""
     if cfg.head == "physics":
-        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight)
+        return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
+                                sum_weight=cfg.sum_weight)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)
