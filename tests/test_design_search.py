@@ -171,3 +171,43 @@ def test_the_search_reports_a_spread_only_when_the_surrogate_has_a_map():
     assert (spread.designs["predicted_spread"] > 0).all()
     assert np.allclose(spread.designs.sort_values("design")["objective"],
                        plain.designs.sort_values("design")["objective"])
+
+
+class CellPredictor(AnalyticPredictor):
+    """The analytic predictor that also takes each mould's N_c (as Predictor does), from
+    `cells(mould)`, and records the N_c it was asked for."""
+
+    def __init__(self, *args, cells, **kwargs):
+        super().__init__(*args, **kwargs)
+        self.cells, self.seen = cells, []
+
+    def mould_arguments(self, moulds):
+        return {"n_cells": np.array([self.cells(m) for m in moulds], np.float64)}
+
+    def __call__(self, inputs, n_cells=None):
+        self.seen += list(n_cells)
+        return super().__call__(inputs)
+
+
+@pytest.mark.parametrize("depends_on_design", [False, True])
+def test_the_cache_tells_designs_apart_by_everything_the_surrogate_reads(depends_on_design):
+    """The same vector twice gives the same masks; it is predicted once when the surrogate's
+    other inputs (N_c here) agree and twice when they differ (the mould id stands in for a
+    sub-pixel difference in the cells)."""
+    from condor.design.search import _Evaluator
+
+    objective = parse_objective("alignment:x")
+    space = default_space(SCENE, objective, n_tethers=2, symmetry="none")
+    predictor = CellPredictor(SCENE.pixels, SCENE.box,
+                              cells=(lambda m: 100.0 + m.mould_id) if depends_on_design
+                              else (lambda m: 100.0))
+    evaluate = _Evaluator(objective, space, predictor, SCENE.pixels, penalty=10.0,
+                          repair_weight=0.05, seed=0)
+    x = np.full(space.dim, 0.1)
+    scores = evaluate(np.stack([x, x]), generation=0, restart=0)
+    masks = [input_channels(space.decode(x, mould_id=k, seed=0).mould, SCENE.pixels)
+             for k in range(2)]
+    np.testing.assert_array_equal(masks[0], masks[1])
+    assert evaluate.n_predicted == (2 if depends_on_design else 1)
+    assert predictor.seen == ([100.0, 101.0] if depends_on_design else [100.0])
+    assert np.all(np.isfinite(scores))

@@ -54,8 +54,9 @@ class SearchResult:
     designs: one row per evaluated design, sorted by `rank` (1 = best score). Columns:
       design (the evaluation index, also the row of `vectors` and the mould id), rank,
       generation (0 = the random probe), restart, score, objective, feasible, violation,
-      repair, n_tethers, shrink, duplicate (same raster as a better-ranked design), raster
-      (a hash of the input channels), one column per objective quantity, and
+      repair, n_tethers, shrink, duplicate (same surrogate inputs as a better-ranked design),
+      raster (raster_hash of the masks and, for a surrogate that reads them, N_c and the
+      lattice channels), one column per objective quantity, and
       predicted_spread (objective_spread, the predicted standard deviation of one
       simulation's objective) when the surrogate has a spread map.
     vectors: (n, dim) design vectors in evaluation order.
@@ -134,10 +135,16 @@ def _native_pixels(predictor, space: DesignSpace) -> int:
     return int(pixels)
 
 
-def raster_hash(inputs: np.ndarray) -> str:
-    """A short stable hash of one design's input channels (2, H, W)."""
-    return hashlib.blake2b(np.ascontiguousarray(inputs, dtype=np.uint8).tobytes(),
-                           digest_size=8).hexdigest()
+def raster_hash(inputs: np.ndarray, extra: dict | None = None) -> str:
+    """A short stable hash of what the surrogate reads of one design: its input channels
+    (2, H, W) and `extra`, its share of mould_arguments (N_c, lattice channels), so that two
+    designs with the same masks but other cells are predicted apart."""
+    digest = hashlib.blake2b(np.ascontiguousarray(inputs, dtype=np.uint8).tobytes(),
+                             digest_size=8)
+    for key in sorted(extra or {}):
+        digest.update(key.encode())
+        digest.update(np.ascontiguousarray(extra[key], dtype=np.float64).tobytes())
+    return digest.hexdigest()
 
 
 @dataclass
@@ -156,20 +163,18 @@ class _Evaluator:
 
     def __call__(self, vectors: np.ndarray, generation: int, restart: int) -> np.ndarray:
         """Evaluate a batch; return scores (higher is better; -inf where undefined)."""
-        decoded, inputs, hashes = [], [], []
-        for x in vectors:
-            design = len(self.vectors) + len(decoded)
-            d = self.space.decode(x, mould_id=design, seed=self.seed)
-            channels = input_channels(d.mould, self.pixels)
-            decoded.append(d)
-            inputs.append(channels)
-            hashes.append(raster_hash(channels))
+        decoded = [self.space.decode(x, mould_id=len(self.vectors) + k, seed=self.seed)
+                   for k, x in enumerate(vectors)]
+        inputs = [input_channels(d.mould, self.pixels) for d in decoded]
+        extra = mould_arguments(self.predictor, [d.mould for d in decoded])
+        hashes = [raster_hash(channels, {key: value[k] for key, value in extra.items()})
+                  for k, channels in enumerate(inputs)]
         new = [i for i, h in enumerate(hashes) if h not in self.cache]
         new = [i for k, i in enumerate(new) if hashes[i] not in {hashes[j] for j in new[:k]}]
         if new:
             prediction = self.predictor(np.stack([inputs[i] for i in new]),
-                                        **mould_arguments(self.predictor,
-                                                          [decoded[i].mould for i in new]))
+                                        **{key: np.asarray(value)[new]
+                                           for key, value in extra.items()})
             normalised = np.asarray(prediction.normalised, dtype=np.float64)
             table = self.objective.evaluate(normalised)
             spread = prediction_spread(prediction)
