@@ -283,3 +283,41 @@ def test_learning_curves_figure_draws_each_table_and_refuses_none(tmp_path):
     assert wide[0] > 1.8 * one[0]  # one panel per curve
     with pytest.raises(ValueError, match="no learning curve"):
         learning_curves_figure({}, tmp_path / "none.png")
+
+
+def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):
+    """A cluster of methods at similar cost and error (the default run's chart: its size,
+    limits, points and error bars): every label's text box lies inside the axes and clear of
+    the other labels, of every marker and of every error bar."""
+    from matplotlib.text import Text
+
+    plt = plots.pyplot()
+    fig, ax = plt.subplots(figsize=(9.5, 5.4))
+    points = [(1.02, 0.159, "single simulation"), (2.04, 0.111, "mean of 2 simulations"),
+              (2.36, 0.150, "hybrid (old default)"), (3.54, 0.154, "minimise"),
+              (6.01, 0.174, "hybrid ftol 0.0001"), (14.8, 0.186, "long anneal 10000"),
+              (4.09, 0.066, "mean of 4 simulations"), (0.052, 0.124, "unet")]
+    bars = [(x, y - 0.035, y + 0.035) for x, y, _ in points]
+    for x, y, _ in points:
+        ax.errorbar([x], [y], yerr=0.035, fmt="o", ms=6)
+    ax.set_xscale("log")
+    ax.set_xlim(2.7e-5, 3.9e5)
+    ax.set_ylim(0, 0.48)
+    fig.tight_layout()
+    fig.canvas.draw()
+    plots._label_points(ax, points, bars=bars)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    boxes = [Text.get_window_extent(t, renderer) for t in ax.texts]
+    assert len(boxes) == len(points)
+    inside = ax.get_window_extent(renderer)
+    to_px = ax.transData.transform
+    markers = [to_px((x, y)) for x, y, _ in points]
+    bar_px = [(to_px((x, lo)), to_px((x, hi))) for x, lo, hi in bars]
+    for i, box in enumerate(boxes):
+        assert inside.x0 <= box.x0 and box.x1 <= inside.x1 and inside.y0 <= box.y0 <= inside.y1
+        assert not any(box.overlaps(other) for other in boxes[i + 1:])
+        assert not any(box.x0 <= mx <= box.x1 and box.y0 <= my <= box.y1 for mx, my in markers)
+        assert not any(box.x0 <= bx <= box.x1 and min(b1, box.y1) > max(b0, box.y0)
+                       for (bx, b0), (_, b1) in bar_px)
+    plt.close(fig)

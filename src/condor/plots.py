@@ -139,26 +139,50 @@ FAMILY_COLOURS = {"long anneal": "black", "anneal": "tab:red", "minimise": "tab:
                   "surrogate": "tab:orange", "baseline": "tab:brown"}
 
 
-def _label_points(ax, points, fontsize: float = 7) -> None:
+def _label_points(ax, points, fontsize: float = 7, bars=None) -> None:
     """Annotate (x, y, label) points, each label at the first of a few offsets around its
-    point where its drawn box overlaps no label already placed (a cluster of methods at
-    similar cost and error stays readable). Call after the limits and the layout are final."""
+    point where its drawn box overlaps no label already placed, no marker and no error bar
+    (`bars`: (x, y_lo, y_hi) per point, data units) and stays inside the axes; where none is
+    clear, at the offset with the fewest clashes (a cluster of methods at similar cost and
+    error stays readable). Call after the limits and the layout are final."""
+    from matplotlib.transforms import Bbox
+
     renderer = ax.figure.canvas.get_renderer()
+    inside = ax.get_window_extent(renderer)
     offsets = ((4, 3, "left"), (4, -10, "left"), (-4, 3, "right"), (-4, -10, "right"),
-               (4, 12, "left"), (4, -19, "left"), (-4, 12, "right"), (-4, -19, "right"))
+               (4, 12, "left"), (4, -19, "left"), (-4, 12, "right"), (-4, -19, "right"),
+               (4, 21, "left"), (4, -28, "left"), (-4, 21, "right"), (-4, -28, "right"),
+               (4, 30, "left"), (4, -37, "left"), (-4, 30, "right"), (-4, -37, "right"),
+               (4, 39, "left"), (4, -46, "left"), (-4, 39, "right"), (-4, -46, "right"))
+    # markers (~6 pt) and error bars (a few px wide), in display units
+    obstacles = [Bbox.from_extents(*(ax.transData.transform((x, y)) - 4),
+                                   *(ax.transData.transform((x, y)) + 4)) for x, y, _ in points]
+    for x, lo, hi in bars or ():
+        (x0, y0), (_, y1) = ax.transData.transform([(x, lo), (x, hi)])
+        obstacles.append(Bbox.from_extents(x0 - 2, y0, x0 + 2, y1))
+
+    def clashes(box) -> int:
+        outside = not (inside.contains(box.x0, box.y0) and inside.contains(box.x1, box.y1))
+        return int(outside) + sum(box.overlaps(other) for other in placed + obstacles)
+
     placed = []
     for x, y, label in sorted(points, key=lambda p: (p[0], p[1])):
-        for dx, dy, ha in offsets:
+        tried = []  # (clashes, offset index, box) of each offset tried
+        for k, (dx, dy, ha) in enumerate(offsets):
             text = ax.annotate(label, (x, y), fontsize=fontsize, xytext=(dx, dy), ha=ha,
                                textcoords="offset points")
             box = text.get_window_extent(renderer)
-            if not any(box.overlaps(other) for other in placed):
-                break
             text.remove()
-        else:  # every offset is taken: keep the first
-            text = ax.annotate(label, (x, y), fontsize=fontsize, xytext=offsets[0][:2],
-                               textcoords="offset points")
-            box = text.get_window_extent(renderer)
+            tried.append((clashes(box), k, box))
+            if tried[-1][0] == 0:
+                break
+        _, k, box = min(tried, key=lambda t: t[:2])  # clear, else the least crowded offset
+        dx, dy, ha = offsets[k]
+        # set further off, a leader line says which point a label names
+        leader = dict(arrowstyle="-", lw=0.5, color="0.45", shrinkA=0, shrinkB=4) \
+            if k >= 4 else None
+        ax.annotate(label, (x, y), fontsize=fontsize, xytext=(dx, dy), ha=ha,
+                    textcoords="offset points", arrowprops=leader)
         placed.append(box)
 
 
@@ -191,8 +215,8 @@ def accuracy_chart(table, path, title: str = "") -> Path:
     ax.set_xlim(lo / 3, PAPER_SIMULATION_SECONDS[1] * 3)
     ax.set_ylim(bottom=0)
     top = ax.get_ylim()[1]
-    ax.text(np.sqrt(np.prod(PAPER_SIMULATION_SECONDS)), 0.97 * top,
-            "paper: 24-36 core-h\nper simulation", ha="center", va="top", fontsize=7,
+    ax.text(PAPER_SIMULATION_SECONDS[0] / 1.15, 0.97 * top,  # left of the band: in the axes
+            "paper: 24-36 core-h\nper simulation", ha="right", va="top", fontsize=7,
             color="tab:red")
     ax.text(PAPER_PREDICTION_SECONDS * 1.15, 0.97 * top, "paper: ~0.1 s\nper prediction",
             va="top", fontsize=7, color="tab:orange")
@@ -206,7 +230,9 @@ def accuracy_chart(table, path, title: str = "") -> Path:
                  fontsize=9)
     fig.tight_layout()
     _label_points(ax, [(max(float(r.cpu_s_per_mould), 1e-5), float(r.field_error), r.method)
-                       for r in table.itertuples()])
+                       for r in table.itertuples()],
+                  bars=[(max(float(r.cpu_s_per_mould), 1e-5), float(r.field_error_lo),
+                         float(r.field_error_hi)) for r in table.itertuples()])
     return save(fig, path, dpi=120)
 
 
