@@ -104,3 +104,15 @@ def test_store_spec_records_scene_split_and_data_config():
     assert spec == Config.from_dict(default_config()).store_spec()  # deterministic
     test_replicas = [r for r, s in zip(config.replicas(), config.splits()) if s == "test"]
     assert set(test_replicas) == {config.simulation["replicas"]["test"]}
+
+
+def test_the_schema_takes_every_variant_setting_the_library_knows():
+    """A setting TrainConfig/UNetConfig accepts but the schema lacks could not be set in a
+    workflow config; num_threads is the workflow's (surrogate.threads), not a variant's."""
+    from condor.surrogate.variants import SETTING_KEYS
+
+    models = load_schema()["properties"]["surrogate"]["properties"]["models"]
+    assert set(models["additionalProperties"]["properties"]) == set(SETTING_KEYS) - {"num_threads"}
+    config = Config.default(surrogate={"variants": ["t"], "models": {"t": {
+        "model": "unet", "head": "physics", "loss": "gaussian", "sum_weight": 1.0}}})
+    assert config.surrogate["models"]["t"]["sum_weight"] == 1.0
