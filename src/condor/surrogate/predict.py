@@ -14,8 +14,8 @@ from condor.metrics import density_sums, normalise_predicted
 from condor.store import quiet_zarr
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
-from .data import (FIELD_NAMES, N_SYMMETRIES, FieldScaling, apply_symmetry, resample_fields,
-                   resample_inputs)
+from .data import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
+                   resample_fields, resample_inputs)
 from .models import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells
 
@@ -156,7 +156,7 @@ class Predictor:
     @property
     def needs_lattice(self) -> bool:
         """True when the network reads the lattice channels (condor.inputs), not the masks."""
-        return self.inputs_kind in ("lattice", "both")
+        return "lattice" in INPUT_VARIABLES[self.inputs_kind]
 
     def lattice_of(self, mould) -> np.ndarray:
         """The exact lattice channels (2, H, W) of a condor.moulds.Mould on the training grid."""
@@ -231,13 +231,12 @@ class Predictor:
                 warnings.warn(f"checkpoint {self.path!r} reads the lattice channels; estimating "
                               "them from the mask pixels (pass lattice= from the mould's "
                               "geometry for the exact ones)", stacklevel=2)
-                network_inputs = self.estimate_lattice(batch)
+                lattice = self.estimate_lattice(batch)
             else:
-                network_inputs = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
-            if self.inputs_kind == "both":
-                network_inputs = np.concatenate([batch.astype(np.float32), network_inputs], axis=1)
-        else:
-            network_inputs = batch
+                lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
+        by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (data.py)
+        network_inputs = np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
+                                         for name in INPUT_VARIABLES[self.inputs_kind]], axis=1)
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,
                                 self.device, self.symmetrise, n_cells, self.inputs_kind)
         normalised, sums = normalise_predicted(raw), density_sums(raw)

@@ -298,7 +298,7 @@ def validation_mae(G, scaling, source: SampleSource, mode: str, device,
                              n_cells=source.n_cells, inputs_kind=source.inputs)
     truth = source.native_fields(items)
     if spread is not None:
-        masks = inputs[:, :2] if source.inputs in ("mask", "both") else \
+        masks = inputs[:, :2] if INPUT_VARIABLES[source.inputs][0] == "inputs" else \
             model_inputs(source.ds, source.indices, "mask")  # masks first when it reads them
         scaling.calibrate_spread(pred, spread, truth, masks.astype(bool).any(axis=1))
     return float(np.abs(pred - truth).mean())
