@@ -16,7 +16,9 @@ from condor.surrogate.calibration import (checkerboard, interval_coverage, sprea
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.data import FIELD_NAMES, apply_symmetry, usable_samples
 from condor.surrogate.models import UNetConfig, UNetGenerator
-from condor.surrogate.physics import PhysicsHead, estimate_n_cells, n_cells_of_mould
+from condor.fields import mould_statistics
+from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,
+                                      n_cells_of_mould)
 from condor.surrogate.predict import Predictor, predict, write_prediction
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
@@ -126,6 +128,84 @@ def test_tension_sum_term_is_finite_for_zero_and_negative_sums():
     assert torch.isfinite(loss) and parts["sum_T"] > 0
     baseline, _ = PhysicsHead(np.ones(8), tension_scale=0.02).loss(out, target, [36.0, 36.0])
     assert loss.item() > baseline.item()
+
+
+def test_field_weights_weigh_each_fields_squared_error():
+    """The weighted loss against a numpy sum over fields, weights normalised to mean 1."""
+    rng = np.random.default_rng(3)
+    scale = np.linspace(0.5, 1.5, 8)
+    weights = np.array([2.0, 1.0, 3.0, 3.0, 1.0, 0.5, 0.25, 0.25])
+    out = torch.from_numpy(rng.normal(size=(2, 16, 6, 6)))
+    target = torch.from_numpy(np.abs(rng.normal(size=(2, 8, 6, 6))))
+    n_cells = [30.0, 40.0]
+    head = PhysicsHead(scale, 0.02, nll_weight=0.0, field_weights=weights)
+    loss, parts = head.loss(out, target, n_cells)
+    fields, _ = head.decode(out, torch.tensor(n_cells, dtype=torch.float64), calibrated=False)
+    per_field = (((fields - target).numpy() / scale[None, :, None, None]) ** 2).mean(axis=(0, 2, 3))
+    expected = (weights / weights.mean() * per_field).mean()
+    assert parts["mse"] == pytest.approx(expected, rel=1e-12)
+    plain, _ = PhysicsHead(scale, 0.02, nll_weight=0.0).loss(out, target, n_cells)
+    assert plain.item() == pytest.approx(per_field.mean(), rel=1e-12)
+    assert abs(loss.item() - plain.item()) > 1e-3  # the weights change it
+    restored = PhysicsHead.from_dict(head.to_dict())
+    assert restored.loss(out, target, n_cells)[0].item() == loss.item()
+
+
+@pytest.mark.parametrize("weights, match", [
+    ([1.0] * 7, "8 finite values"), ([1, 1, 1, 1, 1, 1, -1, -1], "8 finite values"),
+    ([0.0] * 8, "not all 0"), ([1, 1, 2, 1, 1, 1, 1, 1], "Sx2 and Sy2 must be equal"),
+    ([1, 1, 1, 1, 1, 1, 2, 1], "SxSz and SySz must be equal")])
+def test_field_weights_are_checked(weights, match):
+    with pytest.raises(ValueError, match=match):
+        PhysicsHead(np.ones(8), 1.0, field_weights=weights)
+    with pytest.raises(ValueError, match="TrainConfig.field_weights"):
+        TrainConfig(model="unet", head="physics", loss="gaussian", field_weights=weights)
+
+
+def test_area_threshold_is_the_statistics_threshold():
+    """Pixels above area_threshold_per_pixel are the area mould_statistics counts, at any
+    pixel size, and the soft area approaches that count for values off the threshold."""
+    rng = np.random.default_rng(4)
+    for pixel in (31.25 / 64, 0.25, 62.5 / 256):
+        threshold = area_threshold_per_pixel(pixel)
+        fields = np.zeros((8, 40, 40))
+        # densities at least half the threshold away from it (the soft count is exact there
+        # up to the sigmoid's tails, < 0.02 per pixel)
+        fields[0] = threshold * rng.choice([0.0, 0.5, 1.5, 2.0, 3.0], size=(40, 40))
+        per_paper_pixel = (62.5 / 256 / pixel) ** 2
+        count = mould_statistics(fields, pixel)["n_P_gt_0.2"] * per_paper_pixel
+        assert count == pytest.approx(np.count_nonzero(fields[0] > threshold))
+        head = PhysicsHead(np.ones(8), 1.0, area_weight=1.0, area_threshold=threshold)
+        soft = head.soft_area(torch.from_numpy(fields[None, 0])).item()
+        assert soft == pytest.approx(count, abs=1600 * 0.02)
+
+
+def test_area_term_adds_the_relative_soft_area_error():
+    rng = np.random.default_rng(5)
+    out = torch.from_numpy(rng.normal(size=(2, 16, 8, 8)))
+    target = torch.zeros(2, 8, 8, 8, dtype=torch.float64)
+    target[0, I["P"], 2:6, 2:6] = 4.0  # 16 pixels well above the threshold 1
+    target[1, I["P"], 1:7, 1:7] = 1.5
+    n_cells = [64.0, 54.0]
+    plain = PhysicsHead(np.ones(8), 0.02)
+    head = PhysicsHead(np.ones(8), 0.02, area_weight=0.7, area_threshold=1.0)
+    loss, parts = head.loss(out, target, n_cells)
+    fields, _ = head.decode(out, torch.tensor(n_cells, dtype=torch.float64))
+    sigmoid = lambda x: 1 / (1 + np.exp(-x))
+    soft = lambda p: sigmoid((p - 1.0) / 0.125).sum(axis=(1, 2))
+    pred, true = soft(fields[:, I["P"]].numpy()), soft(target[:, I["P"]].numpy())
+    expected = (np.abs(pred - true) / (true + 1)).mean()
+    assert parts["area"] == pytest.approx(expected, rel=1e-10)
+    assert loss.item() == pytest.approx(plain.loss(out, target, n_cells)[0].item()
+                                        + 0.7 * expected, rel=1e-12)
+    # a perfect density costs nothing
+    exact = out.clone()
+    exact[:, 0] = torch.log(target[:, I["P"]] + 1e-300)
+    assert head.loss(exact, target, n_cells)[1]["area"] < 1e-9
+    with pytest.raises(ValueError, match="area_threshold"):
+        PhysicsHead(np.ones(8), 1.0, area_weight=1.0)
+    with pytest.raises(ValueError, match="area_weight.*needs head 'physics'"):
+        TrainConfig(model="unet_l1", area_weight=1.0)
 
 
 def test_cell_count_of_a_pixel_aligned_rectangle_is_exact():

@@ -27,6 +27,18 @@ N_c (T' the target). A mould's tension per cell spans 400x over the training mou
 (tau_0 x [0.01, 5]), so the pixel error alone weighs low-tension moulds by almost nothing and
 shrinks their mean T towards the average (docs/surrogate.md "The mould's total tension").
 
+field_weights (8,) weigh each field's squared error (normalised to mean 1; transpose pairs
+equal, so the loss commutes with every symmetry). The default weighs the four fields of the
+whole-mould statistics (P, T, Sx2, Sy2) above the off-diagonal ones, whose expected field is
+near 0 and whose single-simulation target is mostly the seed's domains (docs/surrogate.md
+"Weighing the fields, and the tissue's area").
+
+With area_weight > 0 the loss adds, per mould, the relative error of its tissue area, counted
+softly: sum of sigmoid((P - a) / (AREA_WIDTH a)) over the pixels for prediction and target
+alike, a = the paper's N(P>0.2) threshold in cells per training pixel. The squared error of P
+weighs an edge's pixels by their error, not by whether they cross the threshold, and the area
+N(P>0.2) is what the statistic counts.
+
 N_c of a mould is its lattice site count (`n_cells_of_mould`); for a bare input image,
 `estimate_n_cells` counts the same FCC sites over the occupied pixels (docs/surrogate.md
 gives its measured error).
@@ -45,6 +57,7 @@ SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL 
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
 SUM_FLOOR = 0.05  # tension per cell, in units of tau_0, below which sum(T)'s error is absolute
 SUM_HUBER = 0.1  # relative sum(T) error above which its loss grows linearly
+AREA_WIDTH = 0.125  # width of the soft area count's sigmoid, in units of the threshold
 CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
 TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
 _IDX = {f: i for i, f in enumerate(FIELD_NAMES)}
@@ -61,8 +74,13 @@ class PhysicsHead:
     n_outputs = N_OUTPUTS
 
     def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
-                 spread_factor=None, sum_weight: float = 0.0):
+                 spread_factor=None, sum_weight: float = 0.0, field_weights=None,
+                 area_weight: float = 0.0, area_threshold: float | None = None):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
+        self.field_weights = check_field_weights(
+            np.ones(len(FIELD_NAMES)) if field_weights is None else field_weights)
+        self.area_weight = float(area_weight)
+        self.area_threshold = None if area_threshold is None else float(area_threshold)
         self.tension_scale = float(tension_scale)
         self.nll_weight = float(nll_weight)
         self.sum_weight = float(sum_weight)
@@ -76,6 +94,13 @@ class PhysicsHead:
                              f"{self.field_scale}")
         if not (np.isfinite(self.sum_weight) and self.sum_weight >= 0):
             raise ValueError(f"sum_weight must be finite and >= 0, got {sum_weight}")
+        if not (np.isfinite(self.area_weight) and self.area_weight >= 0):
+            raise ValueError(f"area_weight must be finite and >= 0, got {area_weight}")
+        if self.area_weight > 0 and not (self.area_threshold is not None
+                                         and np.isfinite(self.area_threshold)
+                                         and self.area_threshold > 0):
+            raise ValueError(f"area_weight > 0 needs a positive area_threshold (cells per "
+                             f"pixel), got {area_threshold}")
         if not (np.isfinite(self.tension_scale) and self.tension_scale != 0):
             raise ValueError(f"tension_scale must be finite and non-zero, got {tension_scale}")
 
@@ -114,12 +139,16 @@ class PhysicsHead:
         return fields, spread
 
     def loss(self, out: torch.Tensor, target: torch.Tensor, n_cells) -> tuple[torch.Tensor, dict]:
-        """Squared error of the mean / field_scale^2, plus nll_weight x the Gaussian NLL of
-        the (detached) residual under the spread, both averaged over pixels and fields, plus
-        sum_weight x the batch mean of the Huber loss of each mould's relative error in sum(T)."""
+        """Squared error of the mean / field_scale^2 x field_weights, plus nll_weight x the
+        Gaussian NLL of the (detached) residual under the spread, both averaged over pixels and
+        fields, plus sum_weight x the batch mean of the Huber loss of each mould's relative
+        error in sum(T), plus area_weight x the batch mean of |relative error| of its soft
+        tissue area."""
         fields, spread = self.decode(out, n_cells, calibrated=False)
         scale = self._scale_tensor(out)
-        mse = (((fields - target) / scale) ** 2).mean()
+        weights = torch.as_tensor(self.field_weights, dtype=out.dtype,
+                                  device=out.device)[None, :, None, None]
+        mse = (weights * ((fields - target) / scale) ** 2).mean()
         residual = (target - fields).detach()
         z = residual / spread
         nll = (0.5 * z * z + torch.log(spread / scale)).mean()
@@ -139,17 +168,32 @@ class PhysicsHead:
             sum_error = F.huber_loss(relative, torch.zeros_like(relative), delta=SUM_HUBER)
             loss = loss + self.sum_weight * sum_error
             parts["sum_T"] = sum_error.item()
+        if self.area_weight > 0:
+            p = _IDX["P"]
+            pred_area, true_area = self.soft_area(fields[:, p]), self.soft_area(target[:, p])
+            area_error = ((pred_area - true_area).abs() / (true_area + 1)).mean()
+            loss = loss + self.area_weight * area_error
+            parts["area"] = area_error.item()
         return loss, parts
+
+    def soft_area(self, density: torch.Tensor) -> torch.Tensor:
+        """(B, H, W) densities -> (B,) pixels above area_threshold, counted softly (a sigmoid
+        AREA_WIDTH x the threshold wide): differentiable, and the hard count as it narrows."""
+        a = self.area_threshold
+        return torch.sigmoid((density - a) / (AREA_WIDTH * a)).sum(dim=(1, 2))
 
     def to_dict(self) -> dict:
         return {"kind": self.kind, "field_scale": self.field_scale.tolist(),
                 "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
-                "spread_factor": self.spread_factor.tolist(), "sum_weight": self.sum_weight}
+                "spread_factor": self.spread_factor.tolist(), "sum_weight": self.sum_weight,
+                "field_weights": self.field_weights.tolist(), "area_weight": self.area_weight,
+                "area_threshold": self.area_threshold}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
         return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
-                   d.get("spread_factor"), d.get("sum_weight", 0.0))
+                   d.get("spread_factor"), d.get("sum_weight", 0.0), d.get("field_weights"),
+                   d.get("area_weight", 0.0), d.get("area_threshold"))
 
     def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
         """Set spread_factor so that, per field, the central `level` interval fields -/+ z
@@ -169,10 +213,34 @@ class PhysicsHead:
         return self.spread_factor
 
 
+def check_field_weights(weights) -> np.ndarray:
+    """`weights` as 8 floats normalised to mean 1; ValueError unless they are finite, >= 0,
+    not all 0, and equal within each transpose pair (PAIRED_FIELDS)."""
+    w = np.asarray(weights, dtype=np.float64).reshape(-1)
+    if w.shape != (len(FIELD_NAMES),) or not np.all(np.isfinite(w)) or np.any(w < 0) \
+            or w.sum() <= 0:
+        raise ValueError(f"field_weights must be {len(FIELD_NAMES)} finite values >= 0, not all "
+                         f"0 (one per field of {FIELD_NAMES}), got {list(weights)}")
+    for a, b in PAIRED_FIELDS:
+        if w[_IDX[a]] != w[_IDX[b]]:
+            raise ValueError(f"field_weights of {a} and {b} must be equal (a transpose swaps "
+                             f"them), got {w[_IDX[a]]} and {w[_IDX[b]]}")
+    return w / w.mean()
+
+
+def area_threshold_per_pixel(pixel_size: float) -> float:
+    """The paper's N(P>0.2) threshold (fields.DENSITY_THRESHOLD cells per paper pixel) in
+    cells per pixel of side `pixel_size` (l0), as fields.mould_statistics applies it."""
+    from condor.fields import DENSITY_THRESHOLD, PAPER_PIXEL_SIZE
+    return DENSITY_THRESHOLD * (float(pixel_size) / PAPER_PIXEL_SIZE) ** 2
+
+
 def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
-                     sum_weight: float = 0.0) -> PhysicsHead:
+                     sum_weight: float = 0.0, field_weights=None, area_weight: float = 0.0,
+                     pixel_size: float | None = None) -> PhysicsHead:
     """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
-    over all pixels (transpose pairs averaged) and sum(T) / sum(P)."""
+    over all pixels (transpose pairs averaged) and sum(T) / sum(P). pixel_size (l0, of the
+    training grid) sets the area threshold (needed with area_weight > 0)."""
     indices = np.asarray(indices)
     if len(indices) == 0:
         raise ValueError("cannot fit a physics head on zero samples")
@@ -189,7 +257,10 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
         rms[[_IDX[a], _IDX[b]]] = 0.5 * (rms[_IDX[a]] + rms[_IDX[b]])
     rms = np.where(rms > 0, rms, 1.0)
     tension = sums[_IDX["T"]] / sums[_IDX["P"]]
-    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight, sum_weight=sum_weight)
+    return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight, sum_weight=sum_weight,
+                       field_weights=field_weights, area_weight=area_weight,
+                       area_threshold=None if pixel_size is None
+                       else area_threshold_per_pixel(pixel_size))
 
 
 # --- the cell count N_c -----------------------------------------------------------------------

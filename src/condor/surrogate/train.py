@@ -30,7 +30,7 @@ from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, Sampl
                    INPUT_VARIABLES, model_inputs, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
-from .physics import PhysicsHead, fit_physics_head, tissue_mask
+from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
 from .predict import default_device, run_model
 
 MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
@@ -74,6 +74,10 @@ class TrainConfig:
     loss_region: "all" pixels or "tissue" (the mould and tethers dilated by the kernel reach).
     nll_weight: weight of the spread's NLL against the mean's squared error (physics head).
     sum_weight: weight of each mould's relative error in sum(T) (physics head; 0 leaves it out).
+    field_weights: 8 weights of the fields' squared errors, in FIELD_NAMES order (physics head;
+    None: all 1; normalised to mean 1; transpose pairs equal).
+    area_weight: weight of each mould's relative error in its soft tissue area, N(P>0.2)
+    (physics head; 0 leaves it out).
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
@@ -107,6 +111,8 @@ class TrainConfig:
     loss_region: str = "all"
     nll_weight: float = 1.0
     sum_weight: float = 0.0
+    field_weights: tuple | None = None
+    area_weight: float = 0.0
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
@@ -136,11 +142,22 @@ class TrainConfig:
         if self.model != "unet" and self.loss != "l1":
             raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
-        if not (math.isfinite(self.sum_weight) and self.sum_weight >= 0):
-            raise ValueError(f"TrainConfig.sum_weight = {self.sum_weight} must be finite and >= 0")
-        if self.sum_weight > 0 and self.head != "physics":
-            raise ValueError(f"TrainConfig.sum_weight = {self.sum_weight} needs head 'physics' "
-                             f"(got {self.head!r})")
+        for name in ("sum_weight", "area_weight"):
+            value = getattr(self, name)
+            if not (math.isfinite(value) and value >= 0):
+                raise ValueError(f"TrainConfig.{name} = {value} must be finite and >= 0")
+            if value > 0 and self.head != "physics":
+                raise ValueError(f"TrainConfig.{name} = {value} needs head 'physics' "
+                                 f"(got {self.head!r})")
+        if self.field_weights is not None:
+            if self.head != "physics":
+                raise ValueError(f"TrainConfig.field_weights = {self.field_weights} needs head "
+                                 f"'physics' (got {self.head!r})")
+            try:
+                check_field_weights(self.field_weights)
+            except (TypeError, ValueError) as err:
+                raise ValueError(f"TrainConfig.{err}") from None
+            self.field_weights = tuple(float(w) for w in self.field_weights)
         if self.head == "physics" and self.scaling != "minmax":
             raise ValueError("TrainConfig: scaling applies to the tanh head only")
         for name in ("epochs", "batch_size", "val_every"):
@@ -309,8 +326,10 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
     split: a FieldScaling (tanh head: min/max, symmetrised when augmenting so that sign flips
     and swaps commute with it; or standard: each field / its RMS) or a PhysicsHead."""
     if cfg.head == "physics":
+        pixel = dataset_pixel_size(ds) * int(ds.sizes["x"]) / size  # of the training grid
         return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
-                                sum_weight=cfg.sum_weight)
+                                sum_weight=cfg.sum_weight, field_weights=cfg.field_weights,
+                                area_weight=cfg.area_weight, pixel_size=pixel)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)
