@@ -138,6 +138,10 @@ def fake_inputs(tmp_path):
                   "coverage_90_hi": [0.93], "spread_r": [0.4], "spread_ratio": [1.4],
                   "spread_pixel_r": [0.5]}).to_csv(d / "calibration.csv", index=False)
     statistics_table().to_csv(d / "statistics.csv", index=False)
+    every = statistics_table(n=24, bias=0.03)
+    every[every["method"] == "unet"].to_csv(d / "statistics_test.csv", index=False)
+    pd.read_csv(d / "calibration.csv").assign(n_moulds=24, coverage_90=0.88).to_csv(
+        d / "calibration_test.csv", index=False)
     pd.DataFrame({"mould": [4, 4], "rung": ["dataset solver", "anneal 1000 + relax"],
                   "budget": [np.nan, 1000.0], "runs": [8, 3], "energy_per_cell": [0.01, 0.0101],
                   "distance_to_dataset": [0.0, 0.02], "spread": [0.1, 0.11]}).to_csv(
@@ -176,6 +180,8 @@ def fake_inputs(tmp_path):
               "accuracy": d / "accuracy.csv", "statistics": d / "statistics.csv",
               "accuracy_chart": d / "chart.png", "ladder": d / "ladder.csv",
               "calibration": d / "calibration.csv", "spread_chart": d / "spread.png",
+              "statistics_test": d / "statistics_test.csv",
+              "calibration_test": d / "calibration_test.csv",
               "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
               "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
               "evaluations": [figures], "histories": [d / "unet_history.csv"],
@@ -204,6 +210,16 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert "3 of 4 simulations finished ok" in summary and "folded" in summary
     assert "closer to the average organisation than one simulation" in summary
     assert "0.881" in summary  # the paper's r beside ours
+    # the surrogate on every test mould first (24, biased 3% in the fake), then the study's 12
+    every = summary.index("unet on every test mould")
+    study = summary.index("unet on the test moulds of the accuracy study")
+    assert every < study
+    assert "unet on 24 test moulds against the replica means: biased by more than 1%" in summary
+    assert "unet on 12 test moulds against the replica means: no statistic is biased" in summary
+    accuracy = page[page.index('id="accuracy"'):page.index('id="simulator"')]
+    calibration = accuracy[accuracy.index("Calibration of the predicted"):]
+    assert "<td>unet</td><td>12</td>" in calibration  # the study's moulds and every test mould
+    assert "<td>unet</td><td>24</td><td>0.6 [0.55, 0.65]</td><td>0.88 [" in calibration
     assert page.count("<details") >= 4  # galleries and long tables fold away
     recipes = page[page.index("surrogate_recipes_paired:"):]
     assert "one row per pair of trained models" in recipes and "nodrop" in recipes

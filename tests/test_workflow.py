@@ -91,6 +91,14 @@ def test_end_to_end_tiny(tmp_path):
     assert "single simulation" in set(accuracy["method"])
     statistics = pd.read_csv(evaluation / "statistics.csv")
     assert {"method", "statistic", "r", "r_ceiling", "bias"} <= set(statistics.columns)
+    assert set(statistics["n"]) == {3}  # report.moulds of tiny.yaml
+    # the predictors on every test mould (4), beside the replicas' own references, and none
+    # of the swept simulation methods
+    every = pd.read_csv(evaluation / "statistics_test.csv")
+    assert set(every["n"]) == {4}
+    assert {"unet", "single simulation"} <= set(every["method"]) < set(statistics["method"])
+    assert not every["method"].str.contains("anneal").any()
+    assert set(pd.read_csv(evaluation / "calibration_test.csv")["n_moulds"]) == {4}
     # the expected fields are the mean of each test mould's replicas
     test = [int(m) for m in ds["replicated"].values]
     mould = test[0]

@@ -165,6 +165,8 @@ REPORT_INPUTS = {
     "statistics": "r, ceiling and bias per method and statistic (results/evaluation/statistics.csv)",
     "accuracy_chart": "cost per mould against error (PNG)",
     "calibration": "each surrogate's spread map against the replicas' scatter (CSV)",
+    "statistics_test": "statistics of the surrogates and baselines on every test mould (CSV)",
+    "calibration_test": "each surrogate's spread map on every test mould (CSV)",
     "spread_chart": "the reproducibility map beside the replicas' scatter (PNG)",
     "ladder": "the anneal ladder (CSV)",
     "convergence": "scene convergence study (CSV)",
@@ -329,12 +331,14 @@ def _summary_section(config, inp) -> Section:
                      "intervals over moulds; line and band: one simulation (the noise ceiling)."),
               verdict(accuracy_verdict(accuracy))]
     if first is not None:
-        blocks += [table(statistics_table(statistics, first),
-                         f"{first}: whole-mould statistics against the replica means (r, 95% "
-                         "interval, n), the ceiling r a perfect predictor reaches against one "
-                         "simulation, the bias (median of predicted / simulated - 1), and the "
-                         "paper's r."),
-                   verdict(statistics_verdict(statistics, first))]
+        every = _csv(inp, "statistics_test")
+        for frame, moulds in ((every, "every test mould"), (statistics, "the test moulds of the accuracy study")):
+            blocks += [table(statistics_table(frame, first),
+                             f"{first} on {moulds}: whole-mould statistics against the replica "
+                             "means (r, 95% interval, n), the ceiling r a perfect predictor "
+                             "reaches against one simulation, the bias (median of predicted / "
+                             "simulated - 1), and the paper's r."),
+                       verdict(statistics_verdict(frame, first))]
     return Section("summary", "At a glance", blocks)
 
 
@@ -345,6 +349,7 @@ def _accuracy_section(inp) -> Section:
                      "field_error_hi", "field_error_plain", "n_moulds"]]
     per_field = accuracy[["method"] + [c for c in accuracy.columns if c.startswith("error_")]]
     methods = [m for m in dict.fromkeys(statistics["method"])]
+    every = _csv(inp, "statistics_test")
     return Section("accuracy", "Accuracy against the expected organisation", [
         paragraph("The truth of every figure is a mould's expected fields: the mean over its "
                   "replicas (the same mould simulated with several seeds). Errors are RMS over "
@@ -359,14 +364,19 @@ def _accuracy_section(inp) -> Section:
         folded("Whole-mould statistics of every method", [
             table(statistics_table(statistics, m), f"{m}: r against the replica means, "
                   "ceiling, bias, n, the paper's r.") for m in methods]),
+        folded("Whole-mould statistics of the surrogates and baselines on every test mould", [
+            table(statistics_table(every, m), f"{m} on every test mould: r against the replica "
+                  "means, ceiling, bias, n, the paper's r.")
+            for m in dict.fromkeys(every["method"])]),
         *_reproducibility_blocks(inp),
     ])
 
 
 def _reproducibility_blocks(inp) -> list[str]:
     """The surrogate's reproducibility map: calibration against the replicas, and the maps."""
-    calibration = _csv(inp, "calibration") if Path(inp["calibration"]).stat().st_size > 1 \
-        else pd.DataFrame()
+    frames = [_csv(inp, key) for key in ("calibration", "calibration_test")
+              if Path(inp[key]).stat().st_size > 1]
+    calibration = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
     blocks = [paragraph("Will this mould give the same tissue twice? A surrogate with a spread "
                         "head predicts, per pixel and field, how far one simulation scatters "
                         "about the expected fields. Checked against the replicas of the test "

@@ -55,6 +55,8 @@ def report_inputs(wildcards):
         "statistics": rules.accuracy.output.statistics,
         "accuracy_chart": rules.accuracy.output.chart,
         "calibration": rules.accuracy.output.calibration,
+        "statistics_test": rules.accuracy.output.statistics_test,
+        "calibration_test": rules.accuracy.output.calibration_test,
         "spread_chart": rules.accuracy.output.spread_chart,
         "ladder": rules.ladder.output[0],
         "convergence": rules.convergence.output.table,

@@ -39,6 +39,8 @@ rule accuracy:
         accuracy=f"{EVALUATION}/accuracy.csv",
         statistics=f"{EVALUATION}/statistics.csv",
         calibration=f"{EVALUATION}/calibration.csv",
+        statistics_test=f"{EVALUATION}/statistics_test.csv",
+        calibration_test=f"{EVALUATION}/calibration_test.csv",
         chart=report(
             f"{EVALUATION}/figures/cost_accuracy.png",
             caption="../report/cost_accuracy.rst",

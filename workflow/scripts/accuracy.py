@@ -5,4 +5,5 @@ from condor.stages.studies import accuracy
 accuracy(start_job(snakemake), snakemake.params.store, snakemake.input.sweeps,
          dict(zip(snakemake.params.variants, snakemake.input.checkpoints)),
          snakemake.output.accuracy, snakemake.output.statistics, snakemake.output.calibration,
-         snakemake.output.chart, snakemake.output.spread_chart)
+         snakemake.output.chart, snakemake.output.spread_chart,
+         snakemake.output.statistics_test, snakemake.output.calibration_test)

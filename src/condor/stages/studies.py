@@ -2,7 +2,8 @@
 
 - `sweep_mould`: every simulation method on one test mould (its own job: the slow one);
 - `accuracy`: every method, surrogate and baseline against the expected fields of the test
-  moulds: results/evaluation/accuracy.csv, statistics.csv and the cost-against-error chart;
+  moulds: results/evaluation/accuracy.csv, statistics.csv and the cost-against-error chart
+  (statistics_test.csv, calibration_test.csv: the predictors alone on every test mould);
 - `ladder`: the anneal ladder against the dataset solver's replicas;
 - `convergence`: depth and box-size reductions against seed noise;
 - `stability`: the stability cases with every solver.
@@ -114,10 +115,13 @@ def _predictor_answers(store, ensemble, checkpoints: dict) -> tuple[list, list]:
 
 
 def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy, out_statistics,
-             out_calibration, out_chart, out_spread_chart) -> tuple[pd.DataFrame, pd.DataFrame]:
+             out_calibration, out_chart, out_spread_chart, out_statistics_test=None,
+             out_calibration_test=None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Every method against the expected fields of the study's test moulds (module docs), and
     each surrogate's spread map against the replicas' scatter (a table, and the maps of the
-    first surrogate on three test moulds)."""
+    first surrogate on three test moulds). out_statistics_test / out_calibration_test: the
+    same tables of the surrogates and baselines alone on every replicated test mould (they
+    need no sweep, and twice the moulds narrow an r's interval by about 1.4)."""
     ensemble = reference_ensemble(store, study_moulds(config))
     log.info("reference ensemble: %d test moulds x %d replicas", len(ensemble.moulds),
              ensemble.n_replicas)
@@ -125,10 +129,17 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     answers = _simulation_answers(ensemble, sweep_npzs) + predicted
     table, statistics = accuracy_study.accuracy_tables(ensemble, answers, seed=config.seed)
     spread_maps(ensemble, calibration, out_spread_chart)
-    calibration = pd.DataFrame([row for row, _, _ in calibration],
-                               columns=None if calibration else ["method", "n_moulds"])
-    for path, frame in ((out_accuracy, table), (out_statistics, statistics),
-                        (out_calibration, calibration)):
+    outputs = [(out_accuracy, table), (out_statistics, statistics),
+               (out_calibration, _calibration_frame(calibration))]
+    if out_statistics_test is not None:
+        every = reference_ensemble(store, config.test_moulds())
+        log.info("predictors on every test mould: %d x %d replicas", len(every.moulds),
+                 every.n_replicas)
+        predicted, calibration = _predictor_answers(store, every, checkpoints)
+        outputs += [(out_statistics_test, accuracy_study.accuracy_tables(
+                        every, predicted, seed=config.seed)[1]),
+                    (out_calibration_test, _calibration_frame(calibration))]
+    for path, frame in outputs:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frame.to_csv(path, index=False)
     plots.accuracy_chart(table, out_chart, title=(
@@ -137,6 +148,11 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     log.info("\n%s", table[["method", "cpu_s_per_mould", "field_error", "field_error_lo",
                             "field_error_hi"]].to_string(index=False))
     return table, statistics
+
+
+def _calibration_frame(calibration: list) -> pd.DataFrame:
+    return pd.DataFrame([row for row, _, _ in calibration],
+                        columns=None if calibration else ["method", "n_moulds"])
 
 
 def spread_maps(ensemble, calibration: list, out_png, n: int = 3) -> None:
