@@ -136,7 +136,8 @@ LEARNING_CURVES = {  # keyed <curve>_curve: Snakemake reserves some input names 
 # it reads (docs/surrogate.md), as tables.
 RECIPE_TABLES = [
     str(path)
-    for name in ("recipes", "recipes_paired", "inputs", "inputs_paired", "tension", "tension_paired")
+    for name in ("recipes", "recipes_paired", "inputs", "inputs_paired", "tension", "tension_paired",
+                 "weights", "weights_paired")
     if (path := CURVE_TABLES / f"surrogate_{name}.csv").exists()
 ]
 
