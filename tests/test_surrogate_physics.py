@@ -260,6 +260,36 @@ def test_physics_training_resumes_bit_identically(physics_ds, tmp_path):
               log=QUIET)
 
 
+def test_checkpoint_records_the_kernel_width_and_older_ones_still_resume(physics_ds, tmp_path):
+    """A store drawn with another kernel width (scene_overrides sigma): the Predictor draws a
+    new mould's lattice channels with that width, not the default's; a checkpoint written
+    before the width was recorded still resumes."""
+    from condor.inputs import lattice_channels
+    from condor.scenes import SIGMA_L0
+
+    ds = physics_ds.copy()
+    ds.attrs = {**physics_ds.attrs, "scene": {"depth": 2.0, "sigma": 1.7}}
+    path = tmp_path / "m.pt"
+    train(ds, TrainConfig(**PHYSICS, epochs=1), path, log=QUIET)
+    predictor = Predictor(path)
+    assert predictor.sigma == 1.7 != SIGMA_L0
+    polygon, tethers = box(3, 3, 12, 12), np.array([[4.0, 4.0, 1.0]])  # x, y, radius
+    mould = type("Mould", (), {"polygon": polygon, "tethers": tethers})()
+    box_side = predictor.pixel_size * predictor.native
+    np.testing.assert_array_equal(
+        predictor.lattice_of(mould), lattice_channels(polygon, tethers, 2.0, box_side, 32, 1.7))
+    assert not np.allclose(predictor.lattice_of(mould),
+                           lattice_channels(polygon, tethers, 2.0, box_side, 32, SIGMA_L0))
+    # as written before the width was recorded: resuming to 2 epochs is not refused
+    state = load_checkpoint(path)
+    del state["data"]["sigma"]
+    torch.save(state, path)
+    history = train(ds, TrainConfig(**PHYSICS, epochs=2), path, log=QUIET)
+    assert len(history) == 2
+    with pytest.raises(CheckpointMismatchError, match="data sigma: checkpoint 1.7 vs now"):
+        train(physics_ds, TrainConfig(**PHYSICS, epochs=3), path, log=QUIET)
+
+
 def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_path):
     path = tmp_path / "m.pt"
     train(physics_ds, TrainConfig(**PHYSICS, epochs=1, symmetrise=True), path, log=QUIET)

@@ -231,6 +231,9 @@ def augment_batch(x: torch.Tensor, y: torch.Tensor, choices) -> tuple[torch.Tens
             torch.stack([p[1] for p in pairs]).contiguous())
 
 
+ADDED_DATA_KEYS = ("sigma",)  # data signature keys that older checkpoints lack
+
+
 def _data_signature(ds, train_idx: np.ndarray) -> dict:
     ids = ds["sample"].values[train_idx] if "sample" in ds.coords else train_idx
     digest = hashlib.sha1(np.asarray(ids).astype(str).tobytes()).hexdigest()[:16]
@@ -239,8 +242,13 @@ def _data_signature(ds, train_idx: np.ndarray) -> dict:
     except ValueError:
         pixel_size = None
     scene = ds.attrs.get("scene")
-    depth = float(scene["depth"]) if isinstance(scene, dict) and "depth" in scene else None
+    scene = scene if isinstance(scene, dict) else {}
+    depth = float(scene["depth"]) if "depth" in scene else None
+    # the kernel width the store's lattice channels were drawn with: prediction draws a new
+    # mould's channels with the same one
+    sigma = scene.get("sigma", ds.attrs.get("sigma"))
     return {"native_size": int(ds.sizes["x"]), "pixel_size": pixel_size, "depth": depth,
+            "sigma": None if sigma is None else float(sigma),
             "field_names": list(FIELD_NAMES), "channel_names": list(CHANNEL_NAMES),
             "n_train": int(len(train_idx)), "train_ids_sha1": digest}
 
@@ -253,8 +261,10 @@ def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
     new = {k: v for k, v in cfg.to_dict().items() if k not in RESUMABLE_KEYS}
     diffs = [f"{k}: checkpoint {old.get(k)!r} vs now {new.get(k)!r}"
              for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
-    diffs += [f"data {k}: checkpoint {state['data'].get(k)!r} vs now {v!r}"
-              for k, v in data.items() if state["data"].get(k) != v]
+    # a data key added after the checkpoint was written (ADDED_DATA_KEYS) is not compared
+    recorded = {k: state["data"].get(k, v if k in ADDED_DATA_KEYS else None) for k, v in data.items()}
+    diffs += [f"data {k}: checkpoint {recorded[k]!r} vs now {v!r}"
+              for k, v in data.items() if recorded[k] != v]
     if diffs:
         raise CheckpointMismatchError(f"cannot resume from {str(path)!r}; it was written for a "
                                       "different run: " + "; ".join(diffs))
