@@ -332,7 +332,8 @@ def _summary_section(config, inp) -> Section:
               verdict(accuracy_verdict(accuracy))]
     if first is not None:
         every = _csv(inp, "statistics_test")
-        for frame, moulds in ((every, "every test mould"), (statistics, "the test moulds of the accuracy study")):
+        for frame, moulds in ((every, "every test mould"),
+                              (statistics, "the test moulds of the accuracy study")):
             blocks += [table(statistics_table(frame, first),
                              f"{first} on {moulds}: whole-mould statistics against the replica "
                              "means (r, 95% interval, n), the ceiling r a perfect predictor "

@@ -80,16 +80,28 @@ def _simulation_answers(ensemble, sweep_npzs) -> list:
     return answers
 
 
-def _predictor_answers(store, ensemble, checkpoints: dict) -> tuple[list, list]:
+def _predictors(store, checkpoints: dict) -> tuple[dict, list]:
+    """The surrogates ({name: Predictor}) and the baselines, fitted once on the training split."""
+    surrogates = {name: Predictor(path, device="cpu") for name, path in checkpoints.items()}
+    ds = open_store(store)
+    train = ds.isel(sample=usable_samples(ds, "train"))
+    baselines = fit_baselines(np.asarray(train["inputs"].values, np.float32),
+                              np.asarray(train["fields"].values, np.float32),
+                              dataset_pixel_size(ds))
+    return surrogates, baselines
+
+
+def _predictor_answers(predictors: tuple[dict, list], ensemble) -> tuple[list, list]:
     """Each surrogate (one torch thread, one mould per call, given the mould's cell count) and
-    each baseline; and the calibration row of each surrogate with a spread map."""
+    each baseline of `predictors` (_predictors); and the calibration row of each surrogate with
+    a spread map."""
+    surrogates, baselines = predictors
     inputs = ensemble.inputs.astype(np.float32)
     answers, calibration = [], []
     threads = torch.get_num_threads()
     torch.set_num_threads(1)
     try:
-        for name, path in checkpoints.items():
-            predictor = Predictor(path, device="cpu")
+        for name, predictor in surrogates.items():
             lattice = ensemble.lattice if predictor.needs_lattice else None
             raw, cpu = accuracy_study.time_predictor(
                 lambda k: predictor(inputs[k:k + 1], n_cells=ensemble.n_cells[k:k + 1],
@@ -102,11 +114,7 @@ def _predictor_answers(store, ensemble, checkpoints: dict) -> tuple[list, list]:
                                     raw, spread))
     finally:
         torch.set_num_threads(threads)
-    ds = open_store(store)
-    train = ds.isel(sample=usable_samples(ds, "train"))
-    for baseline in fit_baselines(np.asarray(train["inputs"].values, np.float32),
-                                  np.asarray(train["fields"].values, np.float32),
-                                  dataset_pixel_size(ds)):
+    for baseline in baselines:
         raw, cpu = accuracy_study.time_predictor(lambda k: baseline.predict(inputs[k:k + 1]),
                                                  len(inputs))
         answers.append(accuracy_study.Answer(f"baseline {baseline.name}", "baseline", raw, cpu,
@@ -125,7 +133,8 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     ensemble = reference_ensemble(store, study_moulds(config))
     log.info("reference ensemble: %d test moulds x %d replicas", len(ensemble.moulds),
              ensemble.n_replicas)
-    predicted, calibration = _predictor_answers(store, ensemble, checkpoints)
+    predictors = _predictors(store, checkpoints)
+    predicted, calibration = _predictor_answers(predictors, ensemble)
     answers = _simulation_answers(ensemble, sweep_npzs) + predicted
     table, statistics = accuracy_study.accuracy_tables(ensemble, answers, seed=config.seed)
     spread_maps(ensemble, calibration, out_spread_chart)
@@ -135,7 +144,7 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
         every = reference_ensemble(store, config.test_moulds())
         log.info("predictors on every test mould: %d x %d replicas", len(every.moulds),
                  every.n_replicas)
-        predicted, calibration = _predictor_answers(store, every, checkpoints)
+        predicted, calibration = _predictor_answers(predictors, every)
         outputs += [(out_statistics_test, accuracy_study.accuracy_tables(
                         every, predicted, seed=config.seed)[1]),
                     (out_calibration_test, _calibration_frame(calibration))]

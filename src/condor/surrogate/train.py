@@ -262,7 +262,8 @@ def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
     diffs = [f"{k}: checkpoint {old.get(k)!r} vs now {new.get(k)!r}"
              for k in sorted(set(old) | set(new)) if old.get(k) != new.get(k)]
     # a data key added after the checkpoint was written (ADDED_DATA_KEYS) is not compared
-    recorded = {k: state["data"].get(k, v if k in ADDED_DATA_KEYS else None) for k, v in data.items()}
+    recorded = {k: state["data"].get(k, v if k in ADDED_DATA_KEYS else None)
+                for k, v in data.items()}
     diffs += [f"data {k}: checkpoint {recorded[k]!r} vs now {v!r}"
               for k, v in data.items() if recorded[k] != v]
     if diffs:
