@@ -32,6 +32,9 @@ def test_train_config_maps_flat_settings():
     ({"model": "pix2pix", "base": 16}, "base"),
     ({"model": "unet_l1", "epochs": -1}, "epochs"),
     ({"model": "unet_l1", "depth": 7}, "divisible"),
+    ({"model": "unet_l1", "betas": [0.9]}, r"betas = \[0.9\]"),
+    ({"model": "unet_l1", "betas": [0.9, 1.0]}, r"betas = \[0.9, 1.0\]"),
+    ({"model": "unet_l1", "betas": [-0.1, 0.99]}, "betas"),
 ])
 def test_train_config_rejects_bad_settings(settings, message):
     with pytest.raises(ValueError, match=message):
@@ -69,6 +72,18 @@ def store(tmp_path_factory):
 
 
 SETTINGS = {"model": "unet_l1", "base": 8, "epochs": 2, "batch_size": 4, "lr": 2e-3}
+
+
+def test_betas_reach_the_optimiser(store, tmp_path):
+    """A variant's `betas` are Adam's in training (the default is the paper's 0.5/0.999)."""
+    assert train_config({"model": "unet_l1"}, 32).betas == (0.5, 0.999)
+    assert train_config({"model": "unet_l1", "betas": [0.9, 0.99]}, 32).betas == (0.9, 0.99)
+    checkpoint = tmp_path / "b.pt"
+    train(store, {**SETTINGS, "epochs": 1, "betas": [0.9, 0.99]}, checkpoint, threads=1,
+          log_line=lambda s: None)
+    state = load_checkpoint(checkpoint)
+    assert [tuple(g["betas"]) for g in state["opt_g"]["param_groups"]] == [(0.9, 0.99)]
+    assert state["config"]["betas"] == [0.9, 0.99]
 
 
 def test_train_variant_publishes_and_resumes(store, tmp_path):

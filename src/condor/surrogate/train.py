@@ -124,6 +124,10 @@ class TrainConfig:
         if isinstance(self.patch, dict):
             self.patch = PatchConfig(**self.patch)
         self.betas = tuple(self.betas)
+        if not (len(self.betas) == 2 and all(isinstance(b, (int, float)) and 0 <= b < 1
+                                             for b in self.betas)):
+            raise ValueError(f"TrainConfig.betas = {list(self.betas)} must be Adam's two "
+                             f"decay rates, each in [0, 1)")
         if self.model not in MODEL_KINDS:
             raise ValueError(f"TrainConfig.model {self.model!r} is not one of {MODEL_KINDS}")
         if self.prediction_mode not in PREDICTION_MODES:
