@@ -176,10 +176,11 @@ REPORT_INPUTS = {
     "evaluations": "evaluation folders, one per variant and one for the baselines",
     "histories": "training history per variant (CSV)",
     "learning_curves": "the surrogate's learning curves (PNG, measured outside the run)",
-    "learning_curve_tables": ("the learning curves', the recipe study's, the inputs study's "
-                              "and the data and tension study's tables "
+    "learning_curve_tables": ("the learning curves' and the paired studies' tables: recipes, "
+                              "inputs, data and tension, field weights, optimiser "
                               "(docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv, "
-                              "surrogate_inputs*.csv, surrogate_tension*.csv)"),
+                              "surrogate_inputs*.csv, surrogate_tension*.csv, "
+                              "surrogate_weights*.csv, surrogate_optimiser*.csv)"),
     "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
     "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
     "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
@@ -461,8 +462,8 @@ def _surrogate_section(config, inp) -> Section:
                       "against the expected fields of the test moulds, with its 95% interval, "
                       "against training moulds (same optimiser steps), model size and epochs; "
                       "dashed, one simulation's error (the ceiling)."),
-               folded("Learning curves, the recipe study, the inputs study and the data and "
-                      "tension study (docs/surrogate.md, \"Twice the data\"): the tables",
+               folded("Learning curves and the paired studies (recipes, inputs, data and "
+                      "tension, field weights, optimiser; docs/surrogate.md): the tables",
                       curve_tables)]
     for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
         figures = sorted(folder.glob("*.png"))
