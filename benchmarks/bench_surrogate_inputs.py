@@ -39,7 +39,7 @@ from condor.surrogate.data import dataset_pixel_size  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 
-KINDS = ("mask", "coverage", "lattice", "estimated", "both")
+KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics")
 # the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
@@ -50,7 +50,7 @@ SUPERSAMPLE = 8
 
 def inputs_of_kind(ds, kind: str, moulds_dir: str | None):
     """`ds` whose `lattice` variable holds what a network of `kind` reads."""
-    if kind in ("mask", "lattice", "both"):
+    if kind in ("mask", "lattice", "both", "mechanics"):  # mechanics: stress from the masks
         return ds
     if kind == "estimated":
         scene = ds.attrs["scene"]
@@ -74,7 +74,7 @@ def run(args) -> None:
     ds = inputs_of_kind(study_dataset(args.store, data["mould_ids"], None), args.kind,
                         args.moulds)
     settings = {**DEFAULT, **json.loads(args.settings or "{}"), "num_threads": args.threads,
-                "inputs": args.kind if args.kind in ("mask", "both") else "lattice"}
+                "inputs": args.kind if args.kind in ("mask", "both", "mechanics") else "lattice"}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / f"{args.kind}.pt"

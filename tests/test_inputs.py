@@ -12,9 +12,9 @@ from condor import inputs
 from condor.lattice import build_lattice, lattice_sites
 from condor.moulds import Mould, generate_mould, input_channels
 from condor.scenes import get_scene
-from condor.surrogate.data import DataError, usable_samples
+from condor.surrogate.data import DataError, model_inputs, usable_samples
 from condor.surrogate.physics import estimate_n_cells
-from condor.surrogate.predict import Predictor
+from condor.surrogate.predict import Predictor, run_model
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
 from condor.surrogate.models import UNetConfig
@@ -139,3 +139,130 @@ def test_a_lattice_model_reads_the_lattice_variable(tmp_path, kind):
         train(ds.drop_vars("lattice"), cfg, tmp_path / "none.pt", log=lambda _: None)
     with pytest.raises(ValueError, match="inputs 'pixels' is not one of"):
         TrainConfig(model="unet", head="physics", loss="gaussian", inputs="pixels")
+
+
+# --- the stress channels: a contracting spring network (inputs.spring_stress) -------------
+
+def _masks(mould, tether):
+    return np.stack([np.asarray(mould, dtype=np.uint8), np.asarray(tether, dtype=np.uint8)])
+
+
+def test_a_strip_between_two_posts_carries_uniform_tension_along_it():
+    """A one-pixel strip between two post pixels has only axial x bonds; with both ends held,
+    no node moves and every bond is stretched by its full contraction |d| = 1: sigma_xx = 1
+    (two half-bonds) on the strip's inside, sigma_yy = 0."""
+    mould, tether = np.zeros((5, 9)), np.zeros((5, 9))
+    mould[2, 1:8] = 1
+    tether[2, [1, 7]] = 1
+    stress = inputs.spring_stress(_masks(mould, tether))
+    assert np.allclose(inputs.spring_displacement(_masks(mould, tether)), 0, atol=1e-7)
+    assert np.allclose(stress[0, 2, 2:7], 1.0, atol=1e-7)
+    assert np.allclose(stress[0, 2, [1, 7]], 0.5, atol=1e-7)  # one bond at each post
+    assert np.allclose(stress[1], 0, atol=1e-7)
+    assert np.all(stress[:, mould + tether == 0] == 0)
+
+
+def test_without_posts_the_network_contracts_freely():
+    mould = np.zeros((8, 8))
+    mould[1:7, 2:6] = 1
+    stress = inputs.spring_stress(_masks(mould, np.zeros((8, 8))))
+    assert stress.shape == (2, 8, 8) and np.all(stress == 0)
+
+
+def _energy(masks, u):
+    """Brute force: sum over every bond of k/2 (n . (u_j - u_i) + |d|)^2, by loops."""
+    domain = (masks[0] > 0) | (masks[1] > 0)
+    total = 0.0
+    H, W = domain.shape
+    for y in range(H):
+        for x in range(W):
+            for (dy, dx), k in inputs.SPRING_BONDS:
+                if not (0 <= y + dy < H and 0 <= x + dx < W):
+                    continue
+                if domain[y, x] and domain[y + dy, x + dx]:
+                    length = np.hypot(dx, dy)
+                    n = np.array([dx, dy]) / length
+                    total += 0.5 * k * (n @ (u[y + dy, x + dx] - u[y, x]) + length) ** 2
+    return total
+
+
+def test_the_displacement_minimises_the_bond_energy():
+    """The sparse solve is the network's equilibrium: the brute-force energy's gradient
+    (central differences) vanishes on every free node and the energy rises along random
+    directions that keep the posts fixed."""
+    rng = np.random.default_rng(7)
+    mould = np.zeros((7, 7))
+    mould[1:6, 1:6] = 1
+    mould[3, 6] = 1
+    tether = np.zeros((7, 7))
+    tether[1, 1] = tether[5, 4] = 1
+    masks = _masks(mould, tether)
+    u = inputs.spring_displacement(masks)
+    free = (mould > 0) & (tether == 0)
+    assert np.all(u[tether > 0] == 0) and np.abs(u[free]).max() > 0.05
+    h = 1e-5
+    for y, x in zip(*np.nonzero(free)):
+        for a in range(2):
+            up, down = u.copy(), u.copy()
+            up[y, x, a] += h
+            down[y, x, a] -= h
+            assert abs(_energy(masks, up) - _energy(masks, down)) / (2 * h) < 1e-6
+    e0 = _energy(masks, u)
+    for _ in range(5):
+        step = rng.normal(size=u.shape) * free[..., None] * 0.01
+        assert _energy(masks, u + step) > e0
+
+
+@pytest.mark.parametrize("k", range(1, 8))
+def test_stress_channels_transform_as_the_augmentation_says(k):
+    """For every planar symmetry g: the stress of the transformed mould is the transformed
+    stress, with the mechanics kind's channel rule (the transpose swaps sigma_xx, sigma_yy);
+    without the rule the transpose would be wrong."""
+    from condor.surrogate.data import apply_symmetry
+
+    m = _mould(6)
+    masks = input_channels(m, SCENE.pixels)
+    lattice = np.zeros((2,) + masks.shape[1:], dtype=np.float32)
+    stress = inputs.spring_stress(masks)
+    x = np.concatenate([masks.astype(np.float32), lattice, stress])
+    gx, _ = apply_symmetry(k, inputs=x, input_kind="mechanics")
+    moved = gx[:2].astype(np.uint8)
+    assert np.allclose(gx[4:], inputs.spring_stress(moved), atol=1e-4)
+    if k & 1:  # a transpose: the plain rule (scalar channels) gets the stress wrong
+        plain, _ = apply_symmetry(k, inputs=x, input_kind="both")
+        assert not np.allclose(plain[4:], inputs.spring_stress(moved), atol=1e-2)
+
+
+def test_stress_channels_solve_each_mould_once_and_check_shapes():
+    masks = input_channels(_mould(6), SCENE.pixels)
+    batch = np.stack([masks, masks[:, ::-1].copy(), masks])
+    out = inputs.stress_channels(batch)
+    assert np.array_equal(out[0], out[2]) and np.allclose(out[1], out[0][:, ::-1], atol=1e-5)
+    with pytest.raises(ValueError, match=r"\(S, 2, H, W\)"):
+        inputs.stress_channels(masks)
+    with pytest.raises(ValueError, match=r"\(2, H, W\)"):
+        inputs.spring_displacement(masks[:1])
+
+
+def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path):
+    ds = synthetic_dataset(8, 32)
+    ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
+    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs="mechanics",
+                      unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), epochs=1,
+                      batch_size=4, lr=2e-3, augment=True, symmetrise=True)
+    path = tmp_path / "mech.pt"
+    train(ds, cfg, path, log=lambda _: None)
+    predictor = Predictor(path)
+    assert predictor.needs_lattice and predictor.model.cfg.in_channels == 6
+    test = usable_samples(ds, "test")
+    masks, lattice = ds["inputs"].values[test], ds["lattice"].values[test]
+    prediction = predictor(masks, n_cells=100.0, lattice=lattice)
+    assert np.allclose(prediction.raw[:, 0].sum(axis=(1, 2)), 100.0, rtol=1e-4)
+    # training reads the masks, the lattice and the stress the masks give
+    read = model_inputs(ds, test, "mechanics")
+    assert np.array_equal(read[:, :2], masks) and np.array_equal(read[:, 2:4], lattice)
+    assert np.array_equal(read[:, 4:], inputs.stress_channels(masks))
+    # and prediction feeds the network those 6 channels: the same as running it on them
+    direct, _ = run_model(predictor.model, predictor.scaling, read, symmetrise=True,
+                          n_cells=np.full(len(test), 100.0), inputs_kind="mechanics")
+    assert np.allclose(direct, prediction.raw, atol=1e-6)

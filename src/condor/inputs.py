@@ -15,6 +15,13 @@ A mould known only as a picture has no lattice; `estimate_lattice_channels` plac
 FCC sites over the occupied pixels (as `physics.estimate_n_cells` counts them): approximate,
 and measured worse than the masks themselves for training, so the workflow stores the exact
 channels (`lattice` in the dataset store) and prediction from a mould file builds them.
+
+The *stress channels* (`spring_stress`, input kind `mechanics`) are a cheap mechanical prior:
+the stress of a linear spring network on the pixel grid (springs to the 4 axial and 4
+diagonal neighbours inside the mould and its posts) that contracts isotropically with the
+post pixels held fixed, sigma_xx and sigma_yy per pixel. Cells align with tension, and the
+network alone misreads the orientation of some geometries (docs/surrogate.md, "A mechanical
+prior"). Both channels are even under the mirrors and swapped by the transpose.
 """
 
 from __future__ import annotations
@@ -23,8 +30,13 @@ import math
 
 import numpy as np
 
-INPUT_KINDS = ("mask", "lattice", "both")  # TrainConfig.inputs; both: masks, then lattice
+# TrainConfig.inputs; both: masks, then lattice; mechanics: masks, lattice, stress channels
+INPUT_KINDS = ("mask", "lattice", "both", "mechanics")
 LATTICE_CHANNELS = ("mobile", "fixed")
+STRESS_CHANNELS = ("stress_xx", "stress_yy")
+# (row, column) offset and stiffness of the spring network's bonds; diagonal springs at half
+# the axial stiffness make a square spring lattice elastically isotropic (Poisson ratio 1/3)
+SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
 
 
 def column_cells(depth: float, pixel_size: float) -> float:
@@ -115,3 +127,94 @@ def estimate_lattice_channels(masks: np.ndarray, pixel_size: float, depth: float
             weights = np.stack([count * ~tether, count * tether], axis=1)
             out[s] = rasterise_cells(xy, weights, depth, pixel_size * pixels, pixels, sigma)
     return out[0] if masks.ndim == 3 else out
+
+
+def _spring_bonds(domain: np.ndarray):
+    """Bonds of the network on the True pixels of `domain` (H, W): per SPRING_BONDS entry,
+    the (row, col) arrays of both ends, the stiffness, the length and the unit (x, y) vector."""
+    H, W = domain.shape
+    for (dy, dx), k in SPRING_BONDS:
+        y0, y1, x0, x1 = max(0, -dy), min(H, H - dy), max(0, -dx), min(W, W - dx)
+        both = domain[y0:y1, x0:x1] & domain[y0 + dy:y1 + dy, x0 + dx:x1 + dx]
+        ys, xs = np.nonzero(both)
+        ys, xs = ys + y0, xs + x0
+        length = math.hypot(dx, dy)
+        yield ys, xs, ys + dy, xs + dx, k, length, np.array([dx, dy]) / length
+
+
+def spring_displacement(masks: np.ndarray) -> np.ndarray:
+    """(2, H, W) masks (mould, tether) -> (H, W, 2) displacements (x, y), in pixels per unit
+    contraction strain, of the linear spring network over mould | tether whose rest lengths
+    shrink by that strain, the tether pixels held fixed: the minimiser of
+    E(u) = sum over bonds of k/2 (n . (u_j - u_i) + |d|)^2. Zero without posts (the free
+    network contracts without stress; its rigid motions are pinned by a 1e-9 ridge)."""
+    import scipy.sparse as sparse
+    import scipy.sparse.linalg as sparse_linalg
+
+    masks = np.asarray(masks)
+    if masks.ndim != 3 or masks.shape[0] != 2:
+        raise ValueError(f"masks must have shape (2, H, W), got {masks.shape}")
+    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
+    u = np.zeros(domain.shape + (2,))
+    free = domain & ~fixed
+    if not fixed.any() or not free.any():
+        return u
+    index = np.full(domain.shape, -1, dtype=np.int64)
+    index[free] = np.arange(int(free.sum()))
+    n = 2 * int(free.sum())
+    rows, cols, values, rhs = [], [], [], np.zeros(n)
+    for ys, xs, yt, xt, k, length, unit in _spring_bonds(domain):
+        i, j = index[ys, xs], index[yt, xt]
+        block = k * np.outer(unit, unit)
+        for p, q, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
+            both = (p >= 0) & (q >= 0)
+            for a in range(2):
+                for b in range(2):
+                    rows.append(2 * p[both] + a)
+                    cols.append(2 * q[both] + b)
+                    values.append(np.full(int(both.sum()), sign * block[a, b]))
+        # -dE/du at u = 0: each bond pulls its ends together with k |d|
+        for p, sign in ((i, 1.0), (j, -1.0)):
+            mobile = p >= 0
+            for a in range(2):
+                np.add.at(rhs, 2 * p[mobile] + a, sign * k * length * unit[a])
+    K = sparse.csc_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
+                          shape=(n, n)) + sparse.identity(n, format="csc") * 1e-9
+    u[free] = sparse_linalg.spsolve(K, rhs).reshape(-1, 2)
+    return u
+
+
+def spring_stress(masks: np.ndarray) -> np.ndarray:
+    """(2, H, W) masks -> (2, H, W) float32 stress channels (STRESS_CHANNELS) of the
+    contracting spring network (`spring_displacement`): per pixel, half of each bond's tension
+    t = k (n . du + |d|) (its stretch beyond the rest length; > 0 pulling) times n_a^2 |d|,
+    summed over the pixel's bonds; units of k per unit contraction strain; 0 outside the
+    mould and its posts."""
+    masks = np.asarray(masks)
+    u = spring_displacement(masks)
+    domain = (masks[0] > 0) | (masks[1] > 0)
+    stress = np.zeros((2,) + domain.shape)
+    if not np.any(masks[1] > 0):
+        return stress.astype(np.float32)
+    for ys, xs, yt, xt, k, length, unit in _spring_bonds(domain):
+        tension = k * ((u[yt, xt] - u[ys, xs]) @ unit + length)
+        for a in range(2):
+            share = 0.5 * tension * unit[a] ** 2 * length
+            np.add.at(stress[a], (ys, xs), share)
+            np.add.at(stress[a], (yt, xt), share)
+    return stress.astype(np.float32)
+
+
+def stress_channels(masks: np.ndarray) -> np.ndarray:
+    """(S, 2, H, W) masks -> (S, 2, H, W) stress channels, each distinct mould solved once."""
+    masks = np.asarray(masks)
+    if masks.ndim != 4 or masks.shape[1] != 2:
+        raise ValueError(f"masks must have shape (S, 2, H, W), got {masks.shape}")
+    solved: dict[bytes, np.ndarray] = {}
+    out = np.empty(masks.shape, dtype=np.float32)
+    for s, sample in enumerate(masks):
+        key = np.ascontiguousarray(sample > 0).tobytes()
+        if key not in solved:
+            solved[key] = spring_stress(sample)
+        out[s] = solved[key]
+    return out

@@ -16,13 +16,20 @@ import torch
 
 from condor.dataset import usable_samples  # noqa: F401  (the one home; re-exported here)
 from condor.fields import FIELD_NAMES
+from condor.inputs import stress_channels
 from condor.store import CHANNELS as CHANNEL_NAMES
 from condor.store import SPLITS  # noqa: F401
 
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
 # What a model reads (TrainConfig.inputs, condor.inputs): the store variables of each kind,
 # two channels each, in this order.
-INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice")}
+INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice"),
+                   "mechanics": ("inputs", "lattice", "stress")}
+# Inputs computed from a store variable, not stored: the stress channels from the masks.
+DERIVED_INPUTS = {"stress": "inputs"}
+# Input channel order after x <-> y, per kind whose channels are not all scalars: the stress
+# channels sigma_xx, sigma_yy swap.
+_INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4)}
 
 
 class DataError(ValueError):
@@ -101,7 +108,7 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     """Model inputs (..., C, H, W) of `kind` -> (..., C, size, size): masks by
     resample_masks; lattice channels (cells per pixel in column units, a density) by
     replication up, block means down."""
-    if kind == "both":
+    if kind in ("both", "mechanics"):  # masks, then densities (lattice, stress per pixel)
         return np.concatenate([resample_masks(inputs[..., :2, :, :], size),
                                resample_inputs(inputs[..., 2:, :, :], size, "lattice")], axis=-3)
     if kind == "mask":
@@ -119,6 +126,7 @@ def check_input_variables(ds, kind: str) -> None:
     if kind not in INPUT_VARIABLES:
         raise ValueError(f"inputs kind {kind!r} is not one of {tuple(INPUT_VARIABLES)}")
     for name in INPUT_VARIABLES[kind]:
+        name = DERIVED_INPUTS.get(name, name)
         if name not in ds:
             raise DataError(f"the dataset has no {name!r} variable, which a model with inputs "
                             f"{kind!r} reads (a store from before format 3?): rebuild the "
@@ -126,8 +134,12 @@ def check_input_variables(ds, kind: str) -> None:
 
 
 def _input_arrays(sel, kind: str) -> np.ndarray:
-    return np.concatenate([np.asarray(sel[name].values, dtype=np.float32)
-                           for name in INPUT_VARIABLES[kind]], axis=-3)
+    def array(name):
+        if name == "stress":
+            return stress_channels(np.asarray(sel["inputs"].values))
+        return np.asarray(sel[name].values, dtype=np.float32)
+
+    return np.concatenate([array(name) for name in INPUT_VARIABLES[kind]], axis=-3)
 
 
 def model_inputs(ds, positions, kind: str = "mask") -> np.ndarray:
@@ -179,9 +191,10 @@ def _generators(k: int) -> list[int]:
     return [g for g in (TRANSPOSE, MIRROR_X, MIRROR_Y, FLIP_Z) if k & g]
 
 
-def _apply_generator(g: int, inputs, fields):
-    """One generator on inputs (..., 2, H, W) (or None) and fields (..., 8, H, W) (or None),
-    numpy or torch; fields in physical units or under a symmetric scaling."""
+def _apply_generator(g: int, inputs, fields, input_kind: str = "mask"):
+    """One generator on inputs (..., C, H, W) of `input_kind` (or None) and fields
+    (..., 8, H, W) (or None), numpy or torch; fields in physical units or under a symmetric
+    scaling."""
     is_torch = torch.is_tensor(fields if fields is not None else inputs)
 
     def flip(a, axis):
@@ -192,6 +205,8 @@ def _apply_generator(g: int, inputs, fields):
 
     if g == TRANSPOSE:
         inputs, fields = swap(inputs), swap(fields)
+        if inputs is not None and input_kind in _INPUTS_TRANSPOSED:
+            inputs = inputs[..., list(_INPUTS_TRANSPOSED[input_kind]), :, :]
         if fields is not None:
             order = [FIELD_NAMES.index(f) for f in _TRANSPOSED]
             fields = fields[..., order, :, :]
@@ -205,14 +220,16 @@ def _apply_generator(g: int, inputs, fields):
     return inputs, fields
 
 
-def apply_symmetry(k: int, inputs=None, fields=None, inverse: bool = False):
+def apply_symmetry(k: int, inputs=None, fields=None, inverse: bool = False,
+                   input_kind: str = "mask"):
     """Transform k (0..15, see TRANSPOSE/MIRROR_X/MIRROR_Y/FLIP_Z) of a sample: inputs
-    (..., 2, H, W) and/or fields (..., 8, H, W), numpy or torch (either may be None). Fields
+    (..., C, H, W) and/or fields (..., 8, H, W), numpy or torch (either may be None). Fields
     must be physical (unscaled) or scaled by a `FieldScaling.symmetrised()` scaling. Returns
-    (inputs, fields); `inverse` applies the inverse transform."""
+    (inputs, fields); `inverse` applies the inverse transform. `input_kind` (a
+    TrainConfig.inputs kind) says which input channels the transpose swaps."""
     gens = _generators(_check_symmetry(k))
     for g in (reversed(gens) if inverse else gens):
-        inputs, fields = _apply_generator(g, inputs, fields)
+        inputs, fields = _apply_generator(g, inputs, fields, input_kind)
     return inputs, fields
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import torch
 import xarray as xr
 
+from condor.inputs import stress_channels
 from condor.metrics import density_sums, normalise_predicted
 from condor.store import quiet_zarr
 
@@ -37,14 +38,15 @@ def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.nd
     return scaling.unscale(out.double().cpu().numpy()), None
 
 
-def _symmetrised(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
+def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
+                 input_kind: str = "mask") -> tuple[np.ndarray, np.ndarray | None]:
     """Mean over the 16 symmetries g of g^-1 G(g x), physical units (float64), and the root
     mean of the transformed-back spread variances. The z-flip leaves the inputs unchanged, so
     each of the 8 planar transforms runs once and its z-flipped twin is its output with SxSz,
     SySz negated: the mean of those two sets them to zero."""
     total, variance = 0.0, 0.0
     for k in range(N_SYMMETRIES // 2):  # the planar ones (FLIP_Z is the highest bit)
-        gx, _ = apply_symmetry(k, inputs=x)
+        gx, _ = apply_symmetry(k, inputs=x, input_kind=input_kind)
         y, spread = _decode(model, scaling, gx, n_cells)
         for z in (0, N_SYMMETRIES // 2):
             total = total + apply_symmetry(k + z, fields=y, inverse=True)[1]
@@ -58,8 +60,8 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, 
 def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "eval",
               batch_size: int = 16, device=None, symmetrise: bool = False,
               n_cells=None, inputs_kind: str = "mask") -> tuple[np.ndarray, np.ndarray | None]:
-    """Model inputs (S, 2, H, W) at the native resolution (0/1 masks, or lattice channels:
-    `inputs_kind`) -> (physical fields (S, 8, H, W),
+    """Model inputs (S, C, H, W) at the native resolution (0/1 masks, lattice or stress
+    channels: `inputs_kind`) -> (physical fields (S, 8, H, W),
     spread (S, 8, H, W) or None) float32 at the native resolution. The model runs at its own
     resolution (inputs resampled nearest, outputs resampled conserving sums; spreads as
     variances). Modes other than "eval" depend on the batch, so they run one sample at a time
@@ -87,7 +89,7 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
             x = resample_inputs(np.asarray(inputs[part], dtype=np.float32), size, inputs_kind)
             x = torch.from_numpy(np.ascontiguousarray(x)).to(device)
             cells = n_cells[part] if physics else None
-            y, spread = _symmetrised(model, scaling, x, cells) if symmetrise else \
+            y, spread = _symmetrised(model, scaling, x, cells, inputs_kind) if symmetrise else \
                 _decode(model, scaling, x, cells)
             out[part] = resample_fields(y, native)
             if physics:
@@ -235,6 +237,8 @@ class Predictor:
             else:
                 lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
         by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (data.py)
+        if "stress" in INPUT_VARIABLES[self.inputs_kind]:
+            by_variable["stress"] = stress_channels(batch)
         network_inputs = np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
                                          for name in INPUT_VARIABLES[self.inputs_kind]], axis=1)
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,

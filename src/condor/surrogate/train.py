@@ -227,10 +227,12 @@ def augmentation_choices(seed: int, epoch: int, n_samples: int) -> np.ndarray:
     return np.random.default_rng([seed, epoch, 13]).integers(N_SYMMETRIES, size=n_samples)
 
 
-def augment_batch(x: torch.Tensor, y: torch.Tensor, choices) -> tuple[torch.Tensor, torch.Tensor]:
-    """Apply symmetry choices[i] to sample i of a batch (inputs x, fields y scaled by a
-    symmetrised FieldScaling)."""
-    pairs = [apply_symmetry(int(k), x[i], y[i]) for i, k in enumerate(choices)]
+def augment_batch(x: torch.Tensor, y: torch.Tensor, choices,
+                  input_kind: str = "mask") -> tuple[torch.Tensor, torch.Tensor]:
+    """Apply symmetry choices[i] to sample i of a batch (inputs x of `input_kind`, fields y
+    scaled by a symmetrised FieldScaling)."""
+    pairs = [apply_symmetry(int(k), x[i], y[i], input_kind=input_kind)
+             for i, k in enumerate(choices)]
     return (torch.stack([p[0] for p in pairs]).contiguous(),
             torch.stack([p[1] for p in pairs]).contiguous())
 
@@ -412,7 +414,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
                 items = order[start_item:start_item + cfg.batch_size]
                 x, y = train_src.batch(items)
                 if cfg.augment:
-                    x, y = augment_batch(x, y, choices[items])
+                    x, y = augment_batch(x, y, choices[items], cfg.inputs)
                 n_cells = torch.as_tensor(train_src.n_cells[items], device=device)
                 for k, v in _train_step(G, D, opt_g, opt_d, x.to(device), y.to(device), cfg,
                                         scaling, n_cells).items():
