@@ -177,10 +177,11 @@ REPORT_INPUTS = {
     "histories": "training history per variant (CSV)",
     "learning_curves": "the surrogate's learning curves (PNG, measured outside the run)",
     "learning_curve_tables": ("the learning curves' and the paired studies' tables: recipes, "
-                              "inputs, data and tension, field weights, optimiser "
-                              "(docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv, "
+                              "inputs, data and tension, field weights, optimiser, mechanical "
+                              "prior (docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv, "
                               "surrogate_inputs*.csv, surrogate_tension*.csv, "
-                              "surrogate_weights*.csv, surrogate_optimiser*.csv)"),
+                              "surrogate_weights*.csv, surrogate_optimiser*.csv, "
+                              "surrogate_mechanics*.csv)"),
     "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
     "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
     "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
@@ -463,7 +464,8 @@ def _surrogate_section(config, inp) -> Section:
                       "against training moulds (same optimiser steps), model size and epochs; "
                       "dashed, one simulation's error (the ceiling)."),
                folded("Learning curves and the paired studies (recipes, inputs, data and "
-                      "tension, field weights, optimiser; docs/surrogate.md): the tables",
+                      "tension, field weights, optimiser, mechanical prior; docs/surrogate.md): "
+                      "the tables",
                       curve_tables)]
     for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
         figures = sorted(folder.glob("*.png"))

@@ -137,7 +137,8 @@ LEARNING_CURVES = {  # keyed <curve>_curve: Snakemake reserves some input names 
 RECIPE_TABLES = [
     str(path)
     for name in ("recipes", "recipes_paired", "inputs", "inputs_paired", "tension", "tension_paired",
-                 "weights", "weights_paired", "optimiser", "optimiser_paired")
+                 "weights", "weights_paired", "optimiser", "optimiser_paired", "mechanics",
+                 "mechanics_paired")
     if (path := CURVE_TABLES / f"surrogate_{name}.csv").exists()
 ]
 
