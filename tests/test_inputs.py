@@ -266,3 +266,24 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path):
     direct, _ = run_model(predictor.model, predictor.scaling, read, symmetrise=True,
                           n_cells=np.full(len(test), 100.0), inputs_kind="mechanics")
     assert np.allclose(direct, prediction.raw, atol=1e-6)
+
+
+def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypatch):
+    """The stress solve is not repeated per epoch: training preloads its moulds and the
+    validation after every epoch reuses its inputs."""
+    from condor.surrogate import data
+
+    calls = []
+    solve = data.stress_channels
+    monkeypatch.setattr(data, "stress_channels", lambda m: calls.append(len(m)) or solve(m))
+    ds = synthetic_dataset(8, 32)
+    ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
+    counts = []
+    for epochs in (1, 3):
+        calls.clear()
+        cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs="mechanics",
+                          unet=UNetConfig.for_size(32, base=8, upsample="bilinear"),
+                          epochs=epochs, batch_size=4, lr=2e-3)
+        train(ds, cfg, tmp_path / f"e{epochs}.pt", log=lambda _: None)
+        counts.append(list(calls))
+    assert counts[0] == counts[1] and len(counts[0]) >= 2  # the training and the val split

@@ -340,6 +340,7 @@ class SampleSource:
         n_bytes = len(self.indices) * 10 * self.size ** 2 * 4
         self.preload = n_bytes <= PRELOAD_BYTES if preload is None else preload
         self._cache = None
+        self._native_inputs = None
         # N_c per sample (the lattice count), for the physics head; NaN when not stored
         self.n_cells = (np.asarray(ds["n_cells"].values, dtype=np.float64)[self.indices]
                         if "n_cells" in ds else np.full(len(self.indices), np.nan))
@@ -348,6 +349,13 @@ class SampleSource:
 
     def __len__(self) -> int:
         return len(self.indices)
+
+    def native_inputs(self) -> np.ndarray:
+        """Every sample's model inputs (S, C, H, W) at the native resolution, read (and the
+        stress channels solved) once: validation runs after every epoch."""
+        if self._native_inputs is None:
+            self._native_inputs = model_inputs(self.ds, self.indices, self.inputs)
+        return self._native_inputs
 
     def _read(self, positions: np.ndarray):
         try:

@@ -327,7 +327,7 @@ def validation_mae(G, scaling, source: SampleSource, mode: str, device,
     if len(source) == 0:
         return float("nan")
     items = np.arange(len(source))
-    inputs = model_inputs(source.ds, source.indices, source.inputs)
+    inputs = source.native_inputs()
     pred, spread = run_model(G, scaling, inputs, mode, device=device, symmetrise=symmetrise,
                              n_cells=source.n_cells, inputs_kind=source.inputs)
     truth = source.native_fields(items)
