@@ -354,7 +354,10 @@ class SampleSource:
         """Every sample's model inputs (S, C, H, W) at the native resolution, read (and the
         stress channels solved) once: validation runs after every epoch."""
         if self._native_inputs is None:
-            self._native_inputs = model_inputs(self.ds, self.indices, self.inputs)
+            if self._cache is not None and self.size == self.native:  # preloaded as they are
+                self._native_inputs = self._cache[0].numpy()
+            else:
+                self._native_inputs = model_inputs(self.ds, self.indices, self.inputs)
         return self._native_inputs
 
     def _read(self, positions: np.ndarray):
