@@ -1,6 +1,8 @@
 """The dataset as a product (condor.dataset): open, select, statistics, a PyTorch DataLoader,
 and a card whose numbers match the store."""
 
+import os
+import platform
 import re
 
 import numpy as np
@@ -105,3 +107,15 @@ def test_training_data_names_a_corrupt_or_lost_sample(store, tmp_path):
     shutil.rmtree(copy / "fields" / "c" / "2")  # a lost chunk reads as NaN: named too
     with pytest.raises(DataError, match=r"sample\(s\) \[2\].*NaN"):
         SampleSource(condor.open_dataset(copy), dataset.usable_samples(ds, "train"), None)
+
+
+def test_hardware_names_the_cpu_target_numba_compiles_for():
+    # the instruction set decides the kernels' last bits, so the record must tell two
+    # machines of one model name apart
+    from llvmlite.binding import get_host_cpu_name
+
+    from condor.stages.dataset import hardware
+
+    record = hardware()
+    assert f"({get_host_cpu_name()})" in record
+    assert record.endswith(f"{os.cpu_count()} cores, {platform.machine()}")

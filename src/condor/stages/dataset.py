@@ -116,7 +116,9 @@ def sim_file(out_dir: str | Path, mould: int, replica: int) -> Path:
 
 
 def hardware() -> str:
-    """The machine this process runs on, as the dataset records it: CPU model, cores, arch."""
+    """The machine this process runs on, as the dataset records it: CPU model, the CPU target
+    numba compiles the kernels for (its instruction set decides their last bits, so two
+    machines of one model name can give different equilibria), cores, arch."""
     model = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -124,6 +126,12 @@ def hardware() -> str:
                 model = line.split(":", 1)[1].strip()
                 break
     except OSError:
+        pass
+    try:
+        from llvmlite.binding import get_host_cpu_name  # numba's own compiler
+
+        model = f"{model} ({get_host_cpu_name()})"
+    except (ImportError, RuntimeError):
         pass
     return f"{model}, {os.cpu_count()} cores, {platform.machine()}"
 
