@@ -39,18 +39,19 @@ from condor.surrogate.data import dataset_pixel_size  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 
-KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics")
+KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics", "mechanics_shear")
 # the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
            "lr_schedule": "cosine", "batch_size": 8, "lr": 0.002, "augment": True,
            "symmetrise": True}
 SUPERSAMPLE = 8
+READ_AS_IS = ("mask", "both", "mechanics", "mechanics_shear")  # the store's own inputs kinds
 
 
 def inputs_of_kind(ds, kind: str, moulds_dir: str | None):
     """`ds` whose `lattice` variable holds what a network of `kind` reads."""
-    if kind in ("mask", "lattice", "both", "mechanics"):  # mechanics: stress from the masks
+    if kind in READ_AS_IS + ("lattice",):  # the stress channels come from the masks
         return ds
     if kind == "estimated":
         scene = ds.attrs["scene"]
@@ -74,7 +75,7 @@ def run(args) -> None:
     ds = inputs_of_kind(study_dataset(args.store, data["mould_ids"], None), args.kind,
                         args.moulds)
     settings = {**DEFAULT, **json.loads(args.settings or "{}"), "num_threads": args.threads,
-                "inputs": args.kind if args.kind in ("mask", "both", "mechanics") else "lattice"}
+                "inputs": args.kind if args.kind in READ_AS_IS else "lattice"}
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     checkpoint = out / f"{args.kind}.pt"

@@ -233,6 +233,29 @@ def test_stress_channels_transform_as_the_augmentation_says(k):
         assert not np.allclose(plain[4:], inputs.spring_stress(moved), atol=1e-2)
 
 
+@pytest.mark.parametrize("k", range(1, 8))
+def test_shear_stress_transforms_as_the_augmentation_says(k):
+    """sigma_xy of the transformed mould is the transformed sigma_xy with mechanics_shear's
+    rule: odd under each mirror, kept by the transpose (which swaps sigma_xx, sigma_yy); the
+    mechanics rule alone (no sign) gets a mirror wrong."""
+    from condor.surrogate.data import apply_symmetry
+
+    masks = input_channels(_mould(6), SCENE.pixels)
+    lattice = np.zeros((2,) + masks.shape[1:], dtype=np.float32)
+    stress = inputs.spring_stress(masks, shear=True)
+    assert np.array_equal(stress[:2], inputs.spring_stress(masks))  # the same xx, yy
+    assert np.abs(stress[2]).max() > 0.1 * np.abs(stress[:2]).max()  # a shear to get wrong
+    x = np.concatenate([masks.astype(np.float32), lattice, stress])
+    gx, _ = apply_symmetry(k, inputs=x, input_kind="mechanics_shear")
+    moved = gx[:2].astype(np.uint8)
+    assert np.allclose(gx[4:], inputs.spring_stress(moved, shear=True), atol=1e-4)
+    if bool(k & 2) != bool(k & 4):  # one mirror (two cancel): without the sign, wrong
+        unsigned, _ = apply_symmetry(k, inputs=x[:6], input_kind="mechanics")
+        flipped = apply_symmetry(k, inputs=x[6:], input_kind="lattice")[0]
+        assert not np.allclose(flipped, inputs.spring_stress(moved, shear=True)[2:], atol=1e-2)
+        assert np.allclose(unsigned[4:], gx[4:6])
+
+
 def test_stress_channels_solve_each_mould_once_and_check_shapes():
     masks = input_channels(_mould(6), SCENE.pixels)
     batch = np.stack([masks, masks[:, ::-1].copy(), masks])
@@ -244,27 +267,28 @@ def test_stress_channels_solve_each_mould_once_and_check_shapes():
         inputs.spring_displacement(masks[:1])
 
 
-def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path):
+@pytest.mark.parametrize("kind, channels", [("mechanics", 6), ("mechanics_shear", 7)])
+def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channels):
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
-    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs="mechanics",
+    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs=kind,
                       unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), epochs=1,
                       batch_size=4, lr=2e-3, augment=True, symmetrise=True)
     path = tmp_path / "mech.pt"
     train(ds, cfg, path, log=lambda _: None)
     predictor = Predictor(path)
-    assert predictor.needs_lattice and predictor.model.cfg.in_channels == 6
+    assert predictor.needs_lattice and predictor.model.cfg.in_channels == channels
     test = usable_samples(ds, "test")
     masks, lattice = ds["inputs"].values[test], ds["lattice"].values[test]
     prediction = predictor(masks, n_cells=100.0, lattice=lattice)
     assert np.allclose(prediction.raw[:, 0].sum(axis=(1, 2)), 100.0, rtol=1e-4)
     # training reads the masks, the lattice and the stress the masks give
-    read = model_inputs(ds, test, "mechanics")
+    read = model_inputs(ds, test, kind)
     assert np.array_equal(read[:, :2], masks) and np.array_equal(read[:, 2:4], lattice)
-    assert np.array_equal(read[:, 4:], inputs.stress_channels(masks))
-    # and prediction feeds the network those 6 channels: the same as running it on them
+    assert np.array_equal(read[:, 4:], inputs.stress_channels(masks, kind == "mechanics_shear"))
+    # and prediction feeds the network those channels: the same as running it on them
     direct, _ = run_model(predictor.model, predictor.scaling, read, symmetrise=True,
-                          n_cells=np.full(len(test), 100.0), inputs_kind="mechanics")
+                          n_cells=np.full(len(test), 100.0), inputs_kind=kind)
     assert np.allclose(direct, prediction.raw, atol=1e-6)
 
 
@@ -275,7 +299,8 @@ def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypat
 
     calls = []
     solve = data.stress_channels
-    monkeypatch.setattr(data, "stress_channels", lambda m: calls.append(len(m)) or solve(m))
+    monkeypatch.setattr(data, "stress_channels",
+                        lambda m, shear=False: calls.append(len(m)) or solve(m, shear))
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
     counts = []

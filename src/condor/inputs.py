@@ -21,7 +21,9 @@ the stress of a linear spring network on the pixel grid (springs to the 4 axial 
 diagonal neighbours inside the mould and its posts) that contracts isotropically with the
 post pixels held fixed, sigma_xx and sigma_yy per pixel. Cells align with tension, and the
 network alone misreads the orientation of some geometries (docs/surrogate.md, "A mechanical
-prior"). Both channels are even under the mirrors and swapped by the transpose.
+prior"). Both channels are even under the mirrors and swapped by the transpose. Input kind
+`mechanics_shear` adds sigma_xy (`spring_stress(..., shear=True)`), which says how the
+principal axes tilt: odd under each mirror, unchanged by the transpose.
 """
 
 from __future__ import annotations
@@ -31,9 +33,10 @@ import math
 import numpy as np
 
 # TrainConfig.inputs; both: masks, then lattice; mechanics: masks, lattice, stress channels
-INPUT_KINDS = ("mask", "lattice", "both", "mechanics")
+INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear")
 LATTICE_CHANNELS = ("mobile", "fixed")
 STRESS_CHANNELS = ("stress_xx", "stress_yy")
+SHEAR_CHANNEL = "stress_xy"
 # (row, column) offset and stiffness of the spring network's bonds; diagonal springs at half
 # the axial stiffness make a square spring lattice elastically isotropic (Poisson ratio 1/3)
 SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
@@ -184,37 +187,39 @@ def spring_displacement(masks: np.ndarray) -> np.ndarray:
     return u
 
 
-def spring_stress(masks: np.ndarray) -> np.ndarray:
+def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     """(2, H, W) masks -> (2, H, W) float32 stress channels (STRESS_CHANNELS) of the
     contracting spring network (`spring_displacement`): per pixel, half of each bond's tension
-    t = k (n . du + |d|) (its stretch beyond the rest length; > 0 pulling) times n_a^2 |d|,
+    t = k (n . du + |d|) (its stretch beyond the rest length; > 0 pulling) times n_a n_b |d|,
     summed over the pixel's bonds; units of k per unit contraction strain; 0 outside the
-    mould and its posts."""
+    mould and its posts. `shear`: (3, H, W), SHEAR_CHANNEL (a = x, b = y) third."""
     masks = np.asarray(masks)
     u = spring_displacement(masks)
     domain = (masks[0] > 0) | (masks[1] > 0)
-    stress = np.zeros((2,) + domain.shape)
+    components = ((0, 0), (1, 1), (0, 1)) if shear else ((0, 0), (1, 1))
+    stress = np.zeros((len(components),) + domain.shape)
     if not np.any(masks[1] > 0):
         return stress.astype(np.float32)
     for ys, xs, yt, xt, k, length, unit in _spring_bonds(domain):
         tension = k * ((u[yt, xt] - u[ys, xs]) @ unit + length)
-        for a in range(2):
-            share = 0.5 * tension * unit[a] ** 2 * length
+        for a, (i, j) in enumerate(components):
+            share = 0.5 * tension * unit[i] * unit[j] * length
             np.add.at(stress[a], (ys, xs), share)
             np.add.at(stress[a], (yt, xt), share)
     return stress.astype(np.float32)
 
 
-def stress_channels(masks: np.ndarray) -> np.ndarray:
-    """(S, 2, H, W) masks -> (S, 2, H, W) stress channels, each distinct mould solved once."""
+def stress_channels(masks: np.ndarray, shear: bool = False) -> np.ndarray:
+    """(S, 2, H, W) masks -> (S, 2, H, W) stress channels ((S, 3, H, W) with `shear`), each
+    distinct mould solved once."""
     masks = np.asarray(masks)
     if masks.ndim != 4 or masks.shape[1] != 2:
         raise ValueError(f"masks must have shape (S, 2, H, W), got {masks.shape}")
     solved: dict[bytes, np.ndarray] = {}
-    out = np.empty(masks.shape, dtype=np.float32)
+    out = np.empty((masks.shape[0], 3 if shear else 2) + masks.shape[2:], dtype=np.float32)
     for s, sample in enumerate(masks):
         key = np.ascontiguousarray(sample > 0).tobytes()
         if key not in solved:
-            solved[key] = spring_stress(sample)
+            solved[key] = spring_stress(sample, shear)
         out[s] = solved[key]
     return out

@@ -24,12 +24,17 @@ PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller t
 # What a model reads (TrainConfig.inputs, condor.inputs): the store variables of each kind,
 # two channels each, in this order.
 INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice"),
-                   "mechanics": ("inputs", "lattice", "stress")}
-# Inputs computed from a store variable, not stored: the stress channels from the masks.
-DERIVED_INPUTS = {"stress": "inputs"}
+                   "mechanics": ("inputs", "lattice", "stress"),
+                   "mechanics_shear": ("inputs", "lattice", "stress_tensor")}
+# Inputs computed from a store variable, not stored: the stress channels from the masks
+# (stress: sigma_xx, sigma_yy; stress_tensor: and sigma_xy).
+DERIVED_INPUTS = {"stress": "inputs", "stress_tensor": "inputs"}
+VARIABLE_CHANNELS = {"inputs": 2, "lattice": 2, "stress": 2, "stress_tensor": 3}
 # Input channel order after x <-> y, per kind whose channels are not all scalars: the stress
-# channels sigma_xx, sigma_yy swap.
-_INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4)}
+# channels sigma_xx, sigma_yy swap (sigma_xy stays).
+_INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4), "mechanics_shear": (0, 1, 2, 3, 5, 4, 6)}
+# Input channels that change sign under each mirror: sigma_xy.
+_INPUTS_ODD = {"mechanics_shear": (6,)}
 
 
 class DataError(ValueError):
@@ -108,7 +113,7 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     """Model inputs (..., C, H, W) of `kind` -> (..., C, size, size): masks by
     resample_masks; lattice channels (cells per pixel in column units, a density) by
     replication up, block means down."""
-    if kind in ("both", "mechanics"):  # masks, then densities (lattice, stress per pixel)
+    if kind in ("both", "mechanics", "mechanics_shear"):  # masks, then lattice, stress
         return np.concatenate([resample_masks(inputs[..., :2, :, :], size),
                                resample_inputs(inputs[..., 2:, :, :], size, "lattice")], axis=-3)
     if kind == "mask":
@@ -119,6 +124,11 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     if up:
         return inputs.repeat(f, axis=-2).repeat(f, axis=-1)
     return _block(inputs, f).mean(axis=(-3, -1)).astype(inputs.dtype)
+
+
+def n_input_channels(kind: str) -> int:
+    """Channels a network of inputs `kind` reads (the sum over its INPUT_VARIABLES)."""
+    return sum(VARIABLE_CHANNELS[name] for name in INPUT_VARIABLES[kind])
 
 
 def check_input_variables(ds, kind: str) -> None:
@@ -135,8 +145,8 @@ def check_input_variables(ds, kind: str) -> None:
 
 def _input_arrays(sel, kind: str) -> np.ndarray:
     def array(name):
-        if name == "stress":
-            return stress_channels(np.asarray(sel["inputs"].values))
+        if name in ("stress", "stress_tensor"):
+            return stress_channels(np.asarray(sel["inputs"].values), name == "stress_tensor")
         return np.asarray(sel[name].values, dtype=np.float32)
 
     return np.concatenate([array(name) for name in INPUT_VARIABLES[kind]], axis=-3)
@@ -213,6 +223,12 @@ def _apply_generator(g: int, inputs, fields, input_kind: str = "mask"):
     elif g in (MIRROR_X, MIRROR_Y):
         axis = -1 if g == MIRROR_X else -2
         inputs, fields = flip(inputs, axis), flip(fields, axis)
+        if inputs is not None and input_kind in _INPUTS_ODD:
+            signs = np.ones(inputs.shape[-3])
+            signs[list(_INPUTS_ODD[input_kind])] = -1
+            signs = signs.reshape(-1, 1, 1)
+            inputs = inputs * (torch.as_tensor(signs, dtype=inputs.dtype, device=inputs.device)
+                               if is_torch else signs.astype(inputs.dtype))
     if fields is not None and g in _ODD:
         signs = _field_signs(g).reshape(-1, 1, 1)
         fields = fields * (torch.as_tensor(signs, dtype=fields.dtype, device=fields.device)

@@ -237,8 +237,9 @@ class Predictor:
             else:
                 lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
         by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (data.py)
-        if "stress" in INPUT_VARIABLES[self.inputs_kind]:
-            by_variable["stress"] = stress_channels(batch)
+        for name in ("stress", "stress_tensor"):
+            if name in INPUT_VARIABLES[self.inputs_kind]:
+                by_variable[name] = stress_channels(batch, name == "stress_tensor")
         network_inputs = np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
                                          for name in INPUT_VARIABLES[self.inputs_kind]], axis=1)
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,

@@ -27,7 +27,7 @@ from condor.inputs import INPUT_KINDS
 
 from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, dataset_pixel_size,
-                   INPUT_VARIABLES, model_inputs, usable_samples)
+                   INPUT_VARIABLES, model_inputs, n_input_channels, usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
@@ -170,7 +170,7 @@ class TrainConfig:
 
     def networks(self, native_size: int) -> tuple[UNetConfig, PatchConfig | None]:
         """Generator and discriminator configs for data of `native_size` px."""
-        n_inputs = 2 * len(INPUT_VARIABLES[self.inputs])  # two channels per store variable
+        n_inputs = n_input_channels(self.inputs)
         if self.model == "pix2pix":
             return replace(UNetConfig.paper(), in_channels=n_inputs), \
                 PatchConfig(in_channels=n_inputs + len(FIELD_NAMES))
