@@ -101,3 +101,29 @@ def test_bad_shapes_are_named():
         est.mse_against_expected(np.zeros((3, 5)), np.zeros((3, 2, 4)))
     with pytest.raises(ValueError, match="NaN"):
         est.noise_ceiling(np.full((2, 2, 2), np.nan))
+
+
+def test_expected_r_removes_the_replica_means_noise():
+    """Synthetic draws with a known answer: a predictor x = mu + N(0, e^2) over mu ~ N(0, 1)
+    has r = 1 / sqrt(1 + e^2) against mu. Against the mean of R noisy replicas the plain r is
+    lower by the replica noise; the corrected r recovers the truth."""
+    rng = np.random.default_rng(11)
+    moulds, noise, error, n_reps = 4000, 0.8, 0.3, 3
+    mu = rng.normal(size=moulds)
+    x = mu + error * rng.normal(size=moulds)
+    reps = mu[:, None] + noise * rng.normal(size=(moulds, n_reps))
+    truth = 1 / np.sqrt(1 + error ** 2)
+    plain_expected = truth / np.sqrt(1 + noise ** 2 / n_reps)  # attenuated by the mean's noise
+    agreement = est.statistic_agreement(x, reps, n_boot=200)
+    assert agreement["r"] == pytest.approx(truth, abs=0.01)
+    assert agreement["r_plain"] == pytest.approx(plain_expected, abs=0.01)
+    assert agreement["r_plain"] < truth - 0.05
+    assert agreement["r_lo"] <= agreement["r"] <= agreement["r_hi"]
+    # no replica noise: the corrected r is the plain one
+    exact = np.repeat(mu[:, None], 2, axis=1)
+    assert est.expected_r(x, mu, exact.var(axis=1, ddof=1), 2) == pytest.approx(
+        est.pearson_r(x, mu))
+    # expected statistics that do not vary beyond the replica noise: no r to give
+    flat = rng.normal(size=(50, 4))
+    assert np.isnan(est.expected_r(rng.normal(size=50), flat.mean(axis=1),
+                                   flat.var(axis=1, ddof=1) * 4, 4))

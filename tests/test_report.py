@@ -214,8 +214,9 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     every = summary.index("unet on every test mould")
     study = summary.index("unet on the test moulds of the accuracy study")
     assert every < study
-    assert "unet on 24 test moulds against the replica means: biased by more than 1%" in summary
-    assert "unet on 12 test moulds against the replica means: no statistic is biased" in summary
+    against = "test moulds against the expected statistics (the replica means)"
+    assert f"unet on 24 {against}: biased by more than 1%" in summary
+    assert f"unet on 12 {against}: no statistic is biased" in summary
     accuracy = page[page.index('id="accuracy"'):page.index('id="simulator"')]
     calibration = accuracy[accuracy.index("Calibration of the predicted"):]
     assert "<td>unet</td><td>12</td>" in calibration  # the study's moulds and every test mould

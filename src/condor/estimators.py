@@ -13,8 +13,10 @@ so  |m - mean_R|^2 - s^2 / R  (s^2 the unbiased replica variance) is an unbiased
 
 Shapes: a method's answers are (M, ...) for M moulds; replicas are (M, R, ...) with R >= 2.
 Every figure has a bootstrap interval over moulds (`bootstrap_interval`); a whole-mould
-statistic's Pearson r comes with its n, its interval and the ceiling a perfect predictor of the
-expected statistic reaches against one simulation (`statistic_agreement`).
+statistic's Pearson r is taken against the expected statistic in the same way (the replica
+mean's noise removed from its variance, `expected_r`) and comes with its n, its interval and
+the ceiling a perfect predictor of the expected statistic reaches against one simulation
+(`statistic_agreement`).
 """
 
 from __future__ import annotations
@@ -166,31 +168,55 @@ def reliability(replicas) -> float:
     return float(np.clip(between / total, 0.0, 1.0)) if total > 0 else float("nan")
 
 
-def _pairs_r(pairs: np.ndarray) -> float:
-    return pearson_r(pairs[:, 0], pairs[:, 1])
+def _pairs_r(columns: np.ndarray) -> float:
+    """Plain r of (method, replica mean) rows (M, 2 or 3)."""
+    return pearson_r(columns[:, 0], columns[:, 1])
+
+
+def expected_r(method, replica_mean, replica_var, n_replicas: int) -> float:
+    """Pearson r of a method against the *expected* statistic mu, with the finite-replica
+    noise removed: cov(method, mean_R) is unbiased for cov(method, mu) (the method is
+    independent of the replicas) and var(mean_R) - mean(s^2) / R for var(mu). NaN when the
+    moulds' expected statistics do not vary beyond that noise; clipped to [-1, 1]."""
+    x = np.asarray(method, dtype=np.float64)
+    m = np.asarray(replica_mean, dtype=np.float64)
+    if x.size < 2:
+        return float("nan")
+    dx, dm = x - x.mean(), m - m.mean()
+    var_x = (dx * dx).mean()
+    var_mu = (dm * dm).mean() - np.mean(replica_var) / n_replicas * (x.size - 1) / x.size
+    if not (var_x > 0 and var_mu > 0):
+        return float("nan")
+    return float(np.clip((dx * dm).mean() / np.sqrt(var_x * var_mu), -1.0, 1.0))
 
 
 def statistic_agreement(method, replicas, n_boot: int = BOOTSTRAP_SAMPLES,
                         seed: int = 0) -> dict:
     """How a method's whole-mould statistic (M,) agrees with the replicas' (M, R).
 
-    r: Pearson r against the replica mean, with r_lo, r_hi (bootstrap over moulds);
-    r_ceiling: the r a perfect predictor of the expected statistic reaches against one
-    simulation, sqrt(reliability); bias: median over moulds of method / replica mean - 1, with
-    bias_lo, bias_hi; n: moulds; informative: n >= MIN_MOULDS_FOR_R (with fewer, r says little).
+    r: Pearson r against the expected statistic, the finite-replica noise removed
+    (`expected_r`), with r_lo, r_hi (bootstrap over moulds); r_plain (r_plain_lo, r_plain_hi):
+    against the replica mean as it is, lowered by that noise; r_ceiling: the r a perfect
+    predictor of the expected statistic reaches against one simulation, sqrt(reliability);
+    bias: median over moulds of method / replica mean - 1, with bias_lo, bias_hi; n: moulds;
+    informative: n >= MIN_MOULDS_FOR_R (with fewer, r says little).
     """
     reps = as_replicas(replicas)
     answer = np.asarray(method, dtype=np.float64)
     if answer.shape != reps.shape[:1] or reps.ndim != 2:
         raise ValueError(f"method statistic {answer.shape} does not match replicas {reps.shape}")
     mean = reps.mean(axis=1)
-    pairs = np.stack([answer, mean], axis=1)
-    r, r_lo, r_hi = bootstrap_interval(pairs, _pairs_r, n_boot, seed=seed)
+    columns = np.stack([answer, mean, reps.var(axis=1, ddof=1)], axis=1)
+    n_reps = reps.shape[1]
+    r, r_lo, r_hi = bootstrap_interval(
+        columns, lambda c: expected_r(c[:, 0], c[:, 1], c[:, 2], n_reps), n_boot, seed=seed)
+    r_plain, r_plain_lo, r_plain_hi = bootstrap_interval(columns, _pairs_r, n_boot, seed=seed)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = answer / mean - 1.0
     bias, bias_lo, bias_hi = bootstrap_interval(ratio, np.median, n_boot, seed=seed)
     ceiling = reliability(reps)
-    return {"n": int(len(mean)), "r": r, "r_lo": r_lo, "r_hi": r_hi,
+    return {"n": int(len(mean)), "r": r, "r_lo": r_lo, "r_hi": r_hi, "r_plain": r_plain,
+            "r_plain_lo": r_plain_lo, "r_plain_hi": r_plain_hi,
             "r_ceiling": float(np.sqrt(ceiling)) if np.isfinite(ceiling) else float("nan"),
             "bias": bias, "bias_lo": bias_lo, "bias_hi": bias_hi,
             "informative": bool(len(mean) >= MIN_MOULDS_FOR_R)}

@@ -10,7 +10,8 @@ dataset solver's own "single simulation" and "mean of k simulations") this modul
   seconds per mould. The row "single simulation" is the noise ceiling: what one run of the
   dataset's solver scores.
 - `statistics` rows: for each whole-mould statistic of the paper, the method's Pearson r
-  against the replica mean with its interval and n, the ceiling r a perfect predictor reaches
+  against the expected statistic (the replica mean's noise removed; `r_plain`: against the
+  replica mean as it is) with its interval and n, the ceiling r a perfect predictor reaches
   against one simulation, the bias (median of method / replica mean - 1) and the paper's r.
 
 Simulations are normalised by their cell count N_c, predictions by their own density sum (the
@@ -33,8 +34,9 @@ from condor.surrogate.calibration import interval_coverage, spread_agreement, ti
 ACCURACY_COLUMNS = ("method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
                     "field_error_hi", "field_error_plain", "field_error_plain_lo",
                     "field_error_plain_hi", "n_moulds")
-STATISTICS_COLUMNS = ("method", "family", "statistic", "n", "r", "r_lo", "r_hi", "r_ceiling",
-                      "bias", "bias_lo", "bias_hi", "informative", "paper_r", "paper_relation")
+STATISTICS_COLUMNS = ("method", "family", "statistic", "n", "r", "r_lo", "r_hi", "r_plain",
+                      "r_plain_lo", "r_plain_hi", "r_ceiling", "bias", "bias_lo", "bias_hi",
+                      "informative", "paper_r", "paper_relation")
 HELD_OUT = ((1, "single simulation"), (2, "mean of 2 simulations"), (4, "mean of 4 simulations"))
 
 
@@ -93,7 +95,7 @@ def _normalised(answer: Answer, n_cells: np.ndarray) -> np.ndarray:
     return normalise(answer.raw.astype(np.float64), n_cells)
 
 
-def _statistics(raw: np.ndarray, pixel_size: float, n_cells) -> np.ndarray:
+def statistics_of(raw: np.ndarray, pixel_size: float, n_cells) -> np.ndarray:
     """(M, n_statistics) of raw fields (M, 8, H, W); n_cells None: own density sums."""
     return np.array(statistics_frame(raw, pixel_size, n_cells=n_cells)[list(STATISTICS)],
                     dtype=np.float64)
@@ -129,7 +131,7 @@ def accuracy_tables(ensemble, answers, seed: int = 0) -> tuple[pd.DataFrame, pd.
     """(accuracy, statistics) tables (module docstring) of `answers` on `ensemble`."""
     truth = ensemble.normalised  # (M, R, 8, H, W)
     m, r = truth.shape[:2]
-    replica_stats = np.stack([_statistics(ensemble.raw[:, j], ensemble.pixel_size,
+    replica_stats = np.stack([statistics_of(ensemble.raw[:, j], ensemble.pixel_size,
                                           ensemble.n_cells) for j in range(r)], axis=1)
     solver_cpu = float(np.median(ensemble.seconds))
     accuracy, statistics = [], []
@@ -154,7 +156,7 @@ def accuracy_tables(ensemble, answers, seed: int = 0) -> tuple[pd.DataFrame, pd.
         per_field = est.mse_against_expected(normalised[ok], truth[ok], per_field=True).corrected
         accuracy.append(_error_row(answer.method, answer.family,
                                    float(np.median(answer.cpu_s[ok])), err, per_field, seed))
-        stats = _statistics(answer.raw, ensemble.pixel_size,
+        stats = statistics_of(answer.raw, ensemble.pixel_size,
                             None if answer.predicted else ensemble.n_cells)
         stats[~ok] = np.nan
         statistics += _statistic_rows(answer.method, answer.family, stats, replica_stats, seed)
