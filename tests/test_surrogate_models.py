@@ -155,3 +155,29 @@ def test_resampling_conserves_sums_and_round_trips():
     with pytest.raises(ValueError, match="16 px to 24 px"):
         resample_fields(f, 24)
     assert math.isclose(float(resample_masks(np.ones((4, 4)), 2).sum()), 4.0)
+
+
+def test_residual_blocks_add_depth_and_reduce_to_the_plain_unet():
+    """blocks=k adds k residual 3x3 blocks (conv without bias + BatchNorm scale and shift) at
+    each encoder and decoder level; with their convolutions zeroed they are the identity, so
+    the network computes exactly what the same weights compute without them."""
+    plain_cfg = UNetConfig.for_size(32, base=8, upsample="bilinear", output="linear")
+    plain = UNetGenerator(plain_cfg, torch.Generator().manual_seed(0)).eval()
+    widths = plain_cfg.widths()
+    decoder = widths[:-1]  # the decoder's levels, below the bottleneck
+    for k in (1, 2):
+        deep = UNetGenerator(UNetConfig.for_size(32, base=8, upsample="bilinear",
+                                                 output="linear", blocks=k)).eval()
+        added = sum(p.numel() for p in deep.parameters()) - \
+            sum(p.numel() for p in plain.parameters())
+        assert added == k * sum(9 * c * c + 2 * c for c in widths + decoder)
+        missing, unexpected = deep.load_state_dict(plain.state_dict(), strict=False)
+        assert not unexpected and missing
+        with torch.no_grad():
+            for name, p in deep.named_parameters():
+                if name in missing and p.ndim == 4:
+                    p.zero_()
+            x = torch.rand(2, 2, 32, 32, generator=torch.Generator().manual_seed(1))
+            torch.testing.assert_close(deep(x), plain(x))
+    with pytest.raises(ValueError, match="blocks"):
+        UNetConfig.for_size(32, blocks=-1)

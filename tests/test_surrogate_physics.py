@@ -151,6 +151,34 @@ def test_field_weights_weigh_each_fields_squared_error():
     assert restored.loss(out, target, n_cells)[0].item() == loss.item()
 
 
+def test_tension_floor_weighs_each_moulds_tension_error_by_its_own_tension():
+    """The T term against a numpy sum: each mould's squared T error times
+    ((1 + f) / (t + f))^2, t = its target's sum(T) / (N_c tau_0); the other fields unchanged."""
+    rng = np.random.default_rng(4)
+    scale, tau, floor = np.linspace(0.5, 1.5, 8), 0.02, 0.5
+    out = torch.from_numpy(rng.normal(size=(3, 16, 6, 6)))
+    target = torch.from_numpy(np.abs(rng.normal(size=(3, 8, 6, 6))))
+    target[:, I["T"]] *= torch.tensor([0.01, 0.1, 1.0], dtype=torch.float64)[:, None, None]
+    n_cells = [30.0, 40.0, 50.0]
+    head = PhysicsHead(scale, tau, nll_weight=0.0, tension_floor=floor)
+    _, parts = head.loss(out, target, n_cells)
+    fields, _ = head.decode(out, torch.tensor(n_cells, dtype=torch.float64), calibrated=False)
+    squared = ((fields - target).numpy() / scale[None, :, None, None]) ** 2
+    per_cell = target[:, I["T"]].numpy().sum(axis=(1, 2)) / (np.array(n_cells) * tau)
+    squared[:, I["T"]] *= ((1 + floor) / (per_cell + floor))[:, None, None] ** 2
+    assert parts["mse"] == pytest.approx(squared.mean(), rel=1e-12)
+    weights = head.tension_weights(target, n_cells).numpy()
+    assert weights[0] > weights[1] > weights[2]  # the lowest tension weighs most
+    assert PhysicsHead.from_dict(head.to_dict()).tension_floor == floor
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="tension_floor"):
+            PhysicsHead(scale, tau, tension_floor=bad)
+        with pytest.raises(ValueError, match="TrainConfig.tension_floor"):
+            TrainConfig(model="unet", head="physics", loss="gaussian", tension_floor=bad)
+    with pytest.raises(ValueError, match="needs head 'physics'"):
+        TrainConfig(model="unet", loss="mse", tension_floor=0.5)
+
+
 @pytest.mark.parametrize("weights, match", [
     ([1.0] * 7, "8 finite values"), ([1, 1, 1, 1, 1, 1, -1, -1], "8 finite values"),
     ([0.0] * 8, "not all 0"), ([1, 1, 2, 1, 1, 1, 1, 1], "Sx2 and Sy2 must be equal"),

@@ -66,7 +66,9 @@ class UNetConfig:
 
     size: input side in pixels (must be divisible by 2**depth); base: channels of the first
     level; depth: number of stride-2 levels (log2(size) reaches a 1x1 bottleneck, as the
-    paper); max_width: channel cap; n_dropout: decoder blocks (from the bottleneck) with dropout.
+    paper); max_width: channel cap; n_dropout: decoder blocks (from the bottleneck) with dropout;
+    blocks: residual 3x3 convolution blocks after each level's resampling convolution, in the
+    encoder and the decoder (0: the paper's one convolution per level).
     """
 
     in_channels: int = 2
@@ -81,6 +83,7 @@ class UNetConfig:
     upsample: str = "transpose"
     output: str = "tanh"
     detached_outputs: int = 0
+    blocks: int = 0
 
     def __post_init__(self):
         if self.upsample not in UPSAMPLE_MODES:
@@ -91,6 +94,8 @@ class UNetConfig:
         for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
             if getattr(self, name) < 1:
                 raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
+        if self.blocks < 0:
+            raise ValueError(f"UNetConfig.blocks must be >= 0, got {self.blocks}")
         if not 0 <= self.detached_outputs <= self.out_channels:
             raise ValueError(f"UNetConfig.detached_outputs={self.detached_outputs} is not in "
                              f"[0, out_channels={self.out_channels}]")
@@ -170,6 +175,23 @@ def _up(c_in: int, c_out: int, dropout: float, mode: str = "transpose") -> nn.Se
     return nn.Sequential(*layers)
 
 
+class _Residual(nn.Module):
+    """x + activation(BN(conv3x3(x))): depth within a level at its own resolution."""
+
+    def __init__(self, channels: int, activation: nn.Module):
+        super().__init__()
+        self.body = nn.Sequential(nn.Conv2d(channels, channels, 3, padding=1, bias=False),
+                                  TFBatchNorm2d(channels), activation)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return x + self.body(x)
+
+
+def _with_blocks(block: nn.Sequential, channels: int, n: int, activation) -> nn.Sequential:
+    return nn.Sequential(*block, *(_Residual(channels, activation()) for _ in range(n))) if n \
+        else block
+
+
 def _init_weights(model: nn.Module, generator: torch.Generator | None) -> None:
     """TensorFlow tutorial initialisation: kernels ~ N(0, 0.02), biases 0, BN gamma 1."""
     for m in model.modules():
@@ -188,16 +210,19 @@ class UNetGenerator(nn.Module):
         super().__init__()
         self.cfg = cfg
         widths = cfg.widths()
+        leaky = lambda: nn.LeakyReLU(cfg.leaky_slope)  # noqa: E731
         self.down = nn.ModuleList(
-            _down(c_in, c_out, norm=i > 0, slope=cfg.leaky_slope)
+            _with_blocks(_down(c_in, c_out, norm=i > 0, slope=cfg.leaky_slope), c_out,
+                         cfg.blocks, leaky)
             for i, (c_in, c_out) in enumerate(zip([cfg.in_channels] + widths[:-1], widths)))
         # Decoder: from the bottleneck up to level 0; after the first block the input is the
         # previous output concatenated with the encoder skip of the same resolution.
         ups = []
         for k, level in enumerate(range(cfg.depth - 2, -1, -1)):
             c_in = widths[level + 1] * (1 if k == 0 else 2)
-            ups.append(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout else 0.0,
-                           cfg.upsample))
+            ups.append(_with_blocks(_up(c_in, widths[level], cfg.dropout if k < cfg.n_dropout
+                                        else 0.0, cfg.upsample), widths[level], cfg.blocks,
+                                    nn.ReLU))
         self.up = nn.ModuleList(ups)
         last_in = widths[0] * (2 if cfg.depth > 1 else 1)
         self.last = _upconv(last_in, cfg.out_channels, cfg.upsample, bias=True)

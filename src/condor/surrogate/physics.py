@@ -33,6 +33,13 @@ whole-mould statistics (P, T, Sx2, Sy2) above the off-diagonal ones, whose expec
 near 0 and whose single-simulation target is mostly the seed's domains (docs/surrogate.md
 "Weighing the fields, and the tissue's area").
 
+With tension_floor f set, T's squared error is weighed per mould by ((1 + f) / (t + f))^2,
+t = the target's tension per cell sum(T') / N_c in units of tau_0: the error relative to the
+mould's own tension instead of the training set's. A mould's tension per cell spans 400x, so
+the absolute error lets the network shrink every mould towards the average tension, which
+over-predicts the many low-tension moulds and biases the median of predicted / simulated
+mean T high (docs/surrogate.md "The mould's own tension").
+
 With area_weight > 0 the loss adds, per mould, the relative error of its tissue area, counted
 softly: sum of sigmoid((P - a) / (AREA_WIDTH a)) over the pixels for prediction and target
 alike, a = the paper's N(P>0.2) threshold in cells per training pixel. The squared error of P
@@ -75,7 +82,8 @@ class PhysicsHead:
 
     def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
                  spread_factor=None, sum_weight: float = 0.0, field_weights=None,
-                 area_weight: float = 0.0, area_threshold: float | None = None):
+                 area_weight: float = 0.0, area_threshold: float | None = None,
+                 tension_floor: float | None = None):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
         self.field_weights = check_field_weights(
             np.ones(len(FIELD_NAMES)) if field_weights is None else field_weights)
@@ -84,6 +92,11 @@ class PhysicsHead:
         self.tension_scale = float(tension_scale)
         self.nll_weight = float(nll_weight)
         self.sum_weight = float(sum_weight)
+        self.tension_floor = None if tension_floor is None else float(tension_floor)
+        if self.tension_floor is not None and not (np.isfinite(self.tension_floor)
+                                                   and self.tension_floor > 0):
+            raise ValueError(f"tension_floor must be finite and > 0 (in units of tau_0), got "
+                             f"{tension_floor}")
         # Per-field factor on the predicted spread, fitted on the validation split after
         # training (calibrate_spread): the training residuals are those of moulds the model
         # has seen, smaller than a new mould's.
@@ -148,7 +161,12 @@ class PhysicsHead:
         scale = self._scale_tensor(out)
         weights = torch.as_tensor(self.field_weights, dtype=out.dtype,
                                   device=out.device)[None, :, None, None]
-        mse = (weights * ((fields - target) / scale) ** 2).mean()
+        squared = weights * ((fields - target) / scale) ** 2
+        if self.tension_floor is not None:
+            t = _IDX["T"]
+            squared = torch.cat([squared[:, :t], squared[:, t:t + 1] * self.tension_weights(
+                target, n_cells)[:, None, None, None], squared[:, t + 1:]], dim=1)
+        mse = squared.mean()
         residual = (target - fields).detach()
         z = residual / spread
         nll = (0.5 * z * z + torch.log(spread / scale)).mean()
@@ -176,6 +194,14 @@ class PhysicsHead:
             parts["area"] = area_error.item()
         return loss, parts
 
+    def tension_weights(self, target: torch.Tensor, n_cells) -> torch.Tensor:
+        """(B,) weights of each mould's T error, ((1 + f) / (|t| + f))^2 with t its target's
+        tension per cell in units of tau_0 and f = tension_floor (1 at t = 1)."""
+        n = torch.as_tensor(n_cells, dtype=target.dtype, device=target.device).reshape(-1)
+        per_cell = target[:, _IDX["T"]].sum(dim=(1, 2)) / (n * self.tension_scale)
+        f = self.tension_floor
+        return ((1 + f) / (per_cell.abs() + f)) ** 2
+
     def soft_area(self, density: torch.Tensor) -> torch.Tensor:
         """(B, H, W) densities -> (B,) pixels above area_threshold, counted softly (a sigmoid
         AREA_WIDTH x the threshold wide): differentiable, and the hard count as it narrows."""
@@ -187,13 +213,13 @@ class PhysicsHead:
                 "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
                 "spread_factor": self.spread_factor.tolist(), "sum_weight": self.sum_weight,
                 "field_weights": self.field_weights.tolist(), "area_weight": self.area_weight,
-                "area_threshold": self.area_threshold}
+                "area_threshold": self.area_threshold, "tension_floor": self.tension_floor}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
         return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
                    d.get("spread_factor"), d.get("sum_weight", 0.0), d.get("field_weights"),
-                   d.get("area_weight", 0.0), d.get("area_threshold"))
+                   d.get("area_weight", 0.0), d.get("area_threshold"), d.get("tension_floor"))
 
     def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
         """Set spread_factor so that, per field, the central `level` interval fields -/+ z
@@ -237,7 +263,8 @@ def area_threshold_per_pixel(pixel_size: float) -> float:
 
 def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
                      sum_weight: float = 0.0, field_weights=None, area_weight: float = 0.0,
-                     pixel_size: float | None = None) -> PhysicsHead:
+                     pixel_size: float | None = None,
+                     tension_floor: float | None = None) -> PhysicsHead:
     """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
     over all pixels (transpose pairs averaged) and sum(T) / sum(P). pixel_size (l0, of the
     training grid) sets the area threshold (needed with area_weight > 0)."""
@@ -260,7 +287,7 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
     return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight, sum_weight=sum_weight,
                        field_weights=field_weights, area_weight=area_weight,
                        area_threshold=None if pixel_size is None
-                       else area_threshold_per_pixel(pixel_size))
+                       else area_threshold_per_pixel(pixel_size), tension_floor=tension_floor)
 
 
 # --- the cell count N_c -----------------------------------------------------------------------

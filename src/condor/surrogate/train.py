@@ -78,6 +78,8 @@ class TrainConfig:
     None: all 1; normalised to mean 1; transpose pairs equal).
     area_weight: weight of each mould's relative error in its soft tissue area, N(P>0.2)
     (physics head; 0 leaves it out).
+    tension_floor: weigh each mould's T error relative to its own tension per cell, floored at
+    this many tau_0 (physics head, PhysicsHead.tension_weights; None: absolute).
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
@@ -113,6 +115,7 @@ class TrainConfig:
     sum_weight: float = 0.0
     field_weights: tuple | None = None
     area_weight: float = 0.0
+    tension_floor: float | None = None
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
@@ -153,6 +156,13 @@ class TrainConfig:
             if value > 0 and self.head != "physics":
                 raise ValueError(f"TrainConfig.{name} = {value} needs head 'physics' "
                                  f"(got {self.head!r})")
+        if self.tension_floor is not None:
+            if not (math.isfinite(self.tension_floor) and self.tension_floor > 0):
+                raise ValueError(f"TrainConfig.tension_floor = {self.tension_floor} must be "
+                                 "finite and > 0")
+            if self.head != "physics":
+                raise ValueError(f"TrainConfig.tension_floor = {self.tension_floor} needs head "
+                                 f"'physics' (got {self.head!r})")
         if self.field_weights is not None:
             if self.head != "physics":
                 raise ValueError(f"TrainConfig.field_weights = {self.field_weights} needs head "
@@ -346,7 +356,8 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
         pixel = dataset_pixel_size(ds) * int(ds.sizes["x"]) / size  # of the training grid
         return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
                                 sum_weight=cfg.sum_weight, field_weights=cfg.field_weights,
-                                area_weight=cfg.area_weight, pixel_size=pixel)
+                                area_weight=cfg.area_weight, pixel_size=pixel,
+                                tension_floor=cfg.tension_floor)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)

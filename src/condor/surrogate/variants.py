@@ -2,9 +2,9 @@
 TrainConfig, and the `surrogate:` section of the workflow config.
 
 A variant's settings are a flat dict: `model` (one of MODEL_KINDS) plus any of
-SETTING_KEYS. U-Net keys (base, depth, max_width, n_dropout, dropout, upsample) size the
-generator of "unet_gan"/"unet_l1"/"unet" at the dataset's native resolution; "pix2pix" is the paper's fixed
-256 px networks and takes no U-Net key.
+SETTING_KEYS. U-Net keys (base, depth, max_width, n_dropout, dropout, upsample, blocks) size
+the generator of "unet_gan"/"unet_l1"/"unet" at the dataset's native resolution; "pix2pix" is
+the paper's fixed 256 px networks and takes no U-Net key.
 """
 
 from __future__ import annotations
@@ -14,11 +14,12 @@ import re
 from .models import UNetConfig
 from .train import MODEL_KINDS, TrainConfig
 
-UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample")
+UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample", "blocks")
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "betas", "lam", "adversarial_target", "seed",
               "val_every", "max_val_samples", "prediction_mode", "num_threads", "augment",
               "symmetrise", "head", "loss", "scaling", "loss_region", "nll_weight", "sum_weight",
-              "field_weights", "area_weight", "detach_spread", "replicas", "lr_schedule", "inputs")
+              "field_weights", "area_weight", "tension_floor", "detach_spread", "replicas",
+              "lr_schedule", "inputs")
 SETTING_KEYS = ("model",) + UNET_KEYS + TRAIN_KEYS
 VARIANT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")  # used in file names and wildcards
 
