@@ -178,10 +178,10 @@ REPORT_INPUTS = {
     "learning_curves": "the surrogate's learning curves (PNG, measured outside the run)",
     "learning_curve_tables": ("the learning curves' and the paired studies' tables: recipes, "
                               "inputs, data and tension, field weights, optimiser, mechanical "
-                              "prior (docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv, "
+                              "prior, recipes on 196 pooled moulds (docs/data/surrogate_curve_*.csv, surrogate_recipes*.csv, "
                               "surrogate_inputs*.csv, surrogate_tension*.csv, "
                               "surrogate_weights*.csv, surrogate_optimiser*.csv, "
-                              "surrogate_mechanics*.csv)"),
+                              "surrogate_mechanics*.csv, surrogate_pooled.csv)"),
     "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
     "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
     "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
@@ -454,7 +454,9 @@ def _surrogate_section(config, inp) -> Section:
                      "field_rms", "field_rms_lo", "field_rms_hi", "ceiling_rms", "ratio",
                      "ratio_lo", "ratio_hi", "P:ratio", "T:ratio", "T:rms", "mean_T:r",
                      "mean_T:bias", "mean_Sx2:r", "mean_Sx2:bias", "n_P_gt_0.2:bias",
-                     "coverage_90")
+                     "coverage_90", "changes", "n_moulds", "field_error", "field_error_lo",
+                     "field_error_hi", "ceiling", "n_P_gt_0.2:r", "mean_Sy2:r", "mean_Sy2:bias",
+                     "tethered mean_Sx2:r", "tethered mean_Sy2:r")
     curve_tables = []
     for path in inp["learning_curve_tables"]:
         curve = pd.read_csv(_existing(path, "learning curve table"))
@@ -470,8 +472,8 @@ def _surrogate_section(config, inp) -> Section:
                       "against training moulds (same optimiser steps), model size and epochs; "
                       "dashed, one simulation's error (the ceiling)."),
                folded("Learning curves and the paired studies (recipes, inputs, data and "
-                      "tension, field weights, optimiser, mechanical prior; docs/surrogate.md): "
-                      "the tables",
+                      "tension, field weights, optimiser, mechanical prior, recipes on 196 "
+                      "pooled moulds; docs/surrogate.md): the tables",
                       curve_tables)]
     for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
         figures = sorted(folder.glob("*.png"))

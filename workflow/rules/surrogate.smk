@@ -138,7 +138,7 @@ RECIPE_TABLES = [
     str(path)
     for name in ("recipes", "recipes_paired", "inputs", "inputs_paired", "tension", "tension_paired",
                  "weights", "weights_paired", "optimiser", "optimiser_paired", "mechanics",
-                 "mechanics_paired")
+                 "mechanics_paired", "pooled")
     if (path := CURVE_TABLES / f"surrogate_{name}.csv").exists()
 ]
 
