@@ -70,8 +70,8 @@ def test_config_is_frozen_and_the_callers_dict_is_untouched():
         ({"moulds": {"no_tether_fraction": 1.5}}, "moulds/no_tether_fraction"),
         ({"scene_overrides": {"pixels": 3}}, "scene_overrides/pixels"),
         ({"scene_overrides": {"colour": 3}}, "colour"),
-        ({"split": {"test": 500}}, "split"),
-        ({"split": {"test": 24, "val_fraction": 0.999}}, "val_fraction"),  # no training mould
+        ({"split": {"test": 10 ** 6}}, "split"),  # more test moulds than moulds
+        ({"split": {"test": 24, "val_fraction": 0.99999}}, "val_fraction"),  # no training mould
         ({"scene_overrides": {"pixels": 36}}, "surrogate/models/unet"),  # 36 px, 3 levels
         ({"surrogate": {"variants": ["unet_l1"], "models": {"unet_l1": {"model": "unet_l1",
                                                                        "epochs": 0}}}}, "epochs"),

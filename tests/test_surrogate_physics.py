@@ -288,6 +288,21 @@ def test_physics_training_resumes_bit_identically(physics_ds, tmp_path):
               log=QUIET)
 
 
+def test_validating_less_often_leaves_the_weights_and_the_calibration_alone(physics_ds, tmp_path):
+    """val_every only skips the diagnostic val_mae of the epochs between: the weights are
+    bit-identical and the last epoch, always validated, sets the same spread calibration (to
+    rounding: each validation rescales the factor by the coverage it finds)."""
+    every = train(physics_ds, TrainConfig(**PHYSICS, epochs=3), tmp_path / "every.pt", log=QUIET)
+    sparse = train(physics_ds, TrainConfig(**PHYSICS, epochs=3, val_every=5),
+                   tmp_path / "sparse.pt", log=QUIET)
+    a, b = (load_checkpoint(tmp_path / f) for f in ("every.pt", "sparse.pt"))
+    assert all(torch.equal(a["generator"][k], b["generator"][k]) for k in a["generator"])
+    assert b["scaling"]["spread_factor"] == pytest.approx(a["scaling"]["spread_factor"], rel=1e-6)
+    assert [h["val_mae"] is None for h in sparse] == [True, True, False]
+    assert all(h["val_mae"] is not None for h in every)
+    assert sparse[-1]["val_mae"] == every[-1]["val_mae"]
+
+
 def test_checkpoint_records_the_kernel_width_and_older_ones_still_resume(physics_ds, tmp_path):
     """A store drawn with another kernel width (scene_overrides sigma): the Predictor draws a
     new mould's lattice channels with that width, not the default's; a checkpoint written
