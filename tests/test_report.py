@@ -133,6 +133,9 @@ def fake_inputs(tmp_path):
     pd.DataFrame({"regime": ["cyclic"], "share": [1.0], "paper_share": [0.2]}).to_csv(
         d / "regimes.csv", index=False)
     accuracy_table().to_csv(d / "accuracy.csv", index=False)
+    every_error = accuracy_table(surrogate=(0.07, 0.065, 0.075))  # the predictors alone
+    every_error[~every_error["family"].isin(["anneal"])].assign(n_moulds=24).to_csv(
+        d / "accuracy_test.csv", index=False)
     pd.DataFrame({"method": ["unet"], "n_moulds": [12], "coverage_50": [0.6], "coverage_50_lo": [0.55],
                   "coverage_50_hi": [0.65], "coverage_90": [0.9], "coverage_90_lo": [0.87],
                   "coverage_90_hi": [0.93], "spread_r": [0.4], "spread_ratio": [1.4],
@@ -181,6 +184,7 @@ def fake_inputs(tmp_path):
               "accuracy_chart": d / "chart.png", "ladder": d / "ladder.csv",
               "calibration": d / "calibration.csv", "spread_chart": d / "spread.png",
               "statistics_test": d / "statistics_test.csv",
+              "accuracy_test": d / "accuracy_test.csv",
               "calibration_test": d / "calibration_test.csv",
               "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
               "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
@@ -209,6 +213,8 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     summary = page[page.index('id="summary"'):page.index('id="accuracy"')]
     assert "3 of 4 simulations finished ok" in summary and "folded" in summary
     assert "closer to the average organisation than one simulation" in summary
+    assert "On every test mould: One simulation" in summary and "24 test moulds" in summary
+    assert "unet (0.07 [0.065, 0.075]" in summary  # the field error on every test mould
     assert "0.881" in summary  # the paper's r beside ours
     # the surrogate on every test mould first (24, biased 3% in the fake), then the study's 12
     every = summary.index("unet on every test mould")

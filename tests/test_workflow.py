@@ -99,6 +99,10 @@ def test_end_to_end_tiny(tmp_path):
     assert {"unet", "single simulation"} <= set(every["method"]) < set(statistics["method"])
     assert not every["method"].str.contains("anneal").any()
     assert set(pd.read_csv(evaluation / "calibration_test.csv")["n_moulds"]) == {4}
+    every_error = pd.read_csv(evaluation / "accuracy_test.csv")
+    assert set(every_error["n_moulds"]) == {4}
+    assert {"unet", "single simulation"} <= set(every_error["method"])
+    assert not every_error["method"].str.contains("anneal").any()
     # the expected fields are the mean of each test mould's replicas
     test = [int(m) for m in ds["replicated"].values]
     mould = test[0]

@@ -166,6 +166,7 @@ REPORT_INPUTS = {
     "accuracy_chart": "cost per mould against error (PNG)",
     "calibration": "each surrogate's spread map against the replicas' scatter (CSV)",
     "statistics_test": "statistics of the surrogates and baselines on every test mould (CSV)",
+    "accuracy_test": "field error of the surrogates and baselines on every test mould (CSV)",
     "calibration_test": "each surrogate's spread map on every test mould (CSV)",
     "spread_chart": "the reproducibility map beside the replicas' scatter (PNG)",
     "ladder": "the anneal ladder (CSV)",
@@ -336,6 +337,8 @@ def _summary_section(config, inp) -> Section:
                      "intervals over moulds; line and band: one simulation (the noise ceiling)."),
               verdict(accuracy_verdict(accuracy))]
     if first is not None:
+        blocks.append(verdict("On every test mould: " + accuracy_verdict(
+            _csv(inp, "accuracy_test"))))
         every = _csv(inp, "statistics_test")
         for frame, moulds in ((every, "every test mould"),
                               (statistics, "the test moulds of the accuracy study")):

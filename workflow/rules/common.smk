@@ -56,6 +56,7 @@ def report_inputs(wildcards):
         "accuracy_chart": rules.accuracy.output.chart,
         "calibration": rules.accuracy.output.calibration,
         "statistics_test": rules.accuracy.output.statistics_test,
+        "accuracy_test": rules.accuracy.output.accuracy_test,
         "calibration_test": rules.accuracy.output.calibration_test,
         "spread_chart": rules.accuracy.output.spread_chart,
         "ladder": rules.ladder.output[0],

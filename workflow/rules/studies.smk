@@ -40,6 +40,7 @@ rule accuracy:
         statistics=f"{EVALUATION}/statistics.csv",
         calibration=f"{EVALUATION}/calibration.csv",
         statistics_test=f"{EVALUATION}/statistics_test.csv",
+        accuracy_test=f"{EVALUATION}/accuracy_test.csv",
         calibration_test=f"{EVALUATION}/calibration_test.csv",
         chart=report(
             f"{EVALUATION}/figures/cost_accuracy.png",

@@ -6,4 +6,5 @@ accuracy(start_job(snakemake), snakemake.params.store, snakemake.input.sweeps,
          dict(zip(snakemake.params.variants, snakemake.input.checkpoints)),
          snakemake.output.accuracy, snakemake.output.statistics, snakemake.output.calibration,
          snakemake.output.chart, snakemake.output.spread_chart,
-         snakemake.output.statistics_test, snakemake.output.calibration_test)
+         snakemake.output.statistics_test, snakemake.output.calibration_test,
+         snakemake.output.accuracy_test)
