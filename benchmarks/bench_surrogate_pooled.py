@@ -1,18 +1,20 @@
 """A training recipe measured against the expected organisation of many moulds.
 
-`train`: the workflow's default variant (config/config.yaml, `unet`) with --settings
-overrides, trained on a store's training split (its first --n-train moulds, the rest left
-out), validated on its val split. `score`: checkpoints against the pooled replicated moulds of
-one or more stores (every test mould with its replicas; a store built only to test, e.g. with
-another seed, adds moulds no checkpoint has seen), with the accuracy stage's own tables
-(condor.studies.accuracy: field error with the finite-replica noise removed, r against the
-expected statistics, bias = median of predicted / simulated - 1, 95% bootstrap intervals over
-moulds), the field error's ratio to the first checkpoint's (paired over moulds, with its
-interval) and the spread map's calibration. Each statistic is also scored on the tethered moulds
-alone (subset `tethered`): the tether-free moulds are few and the surrogate's largest errors.
+`train`: the workflow's default variant (config/config.yaml, `unet`) with --settings overrides,
+trained on a store's training split (--extra-train: and the training moulds of other stores
+of the same scene after them, a training set larger than the workflow's budget; --n-train: the
+first n of them, the rest left out), validated on its val split. `score`: checkpoints
+against the pooled replicated moulds of one or more stores (every test mould with its replicas;
+a store built only to test, e.g. with another seed, adds moulds no checkpoint has seen), with
+the accuracy stage's own tables (condor.studies.accuracy: field error with the finite-replica
+noise removed, r against the expected statistics, bias = median of predicted / simulated - 1,
+95% bootstrap intervals over moulds), the field error's ratio to the first checkpoint's (paired
+over moulds, with its interval) and the spread map's calibration. Each statistic is also scored
+on the tethered moulds alone (subset `tethered`): the tether-free moulds are few and the
+surrogate's largest errors.
 
     PYTHONPATH=src python benchmarks/bench_surrogate_pooled.py train --store STORE \\
-        --out DIR/NAME.pt [--n-train N] [--settings JSON] [--threads 2]
+        --out DIR/NAME.pt [--n-train N] [--extra-train STORE ...] [--settings JSON] [--threads 2]
     PYTHONPATH=src python benchmarks/bench_surrogate_pooled.py score --test STORE [STORE ...] \\
         --out CSV DIR/NAME.pt [DIR/NAME.pt ...]
 
@@ -32,6 +34,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import torch
+import xarray as xr
 
 import condor
 from condor import estimators as est
@@ -57,6 +60,8 @@ def default_settings() -> dict:
 def run_training(args) -> None:
     settings = {**default_settings(), **json.loads(args.settings), "num_threads": args.threads}
     ds = condor.open_dataset(args.store).load()
+    for store in args.extra_train:
+        ds = with_training_moulds(ds, condor.open_dataset(store).load())
     if args.n_train is not None:
         split = ds["split"].values.astype("<U8").copy()
         split[usable_samples(ds, "train")[args.n_train:]] = "unused"
@@ -66,6 +71,20 @@ def run_training(args) -> None:
     train(ds, train_config(settings, int(ds.sizes["x"])), args.out,
           log=lambda line: print("   ", line, flush=True))
     print(f"trained in {time.perf_counter() - start:.0f} s (wall)")
+
+
+def with_training_moulds(ds, extra):
+    """`ds` with the usable training moulds of another store of the same scene appended as
+    training samples (renumbered after ds's; the per-mould replica tables dropped)."""
+    if extra.attrs.get("data_config", {}).get("scene") != ds.attrs.get("data_config", {}).get("scene"):
+        raise SystemExit("the extra training store has another scene")
+    extra = extra.isel(sample=usable_samples(extra, "train"))
+    extra = extra.assign_coords(sample=extra["sample"].values + int(ds["sample"].max()) + 1)
+    keep = [name for name in ds.data_vars if ds[name].dims[:1] == ("sample",)]
+    joined = xr.concat([ds[keep], extra[keep]], dim="sample", data_vars="all",
+                       coords="minimal", compat="override", join="override")
+    joined.attrs = ds.attrs
+    return joined
 
 
 def pooled_ensemble(stores):
@@ -175,6 +194,8 @@ def main(argv=None) -> None:
     t.add_argument("--store", required=True)
     t.add_argument("--out", required=True)
     t.add_argument("--n-train", type=int, default=None)
+    t.add_argument("--extra-train", nargs="*", default=[],
+                   help="stores whose training moulds are added to the training split")
     t.add_argument("--settings", default="{}")
     t.add_argument("--threads", type=int, default=2)
     s = sub.add_parser("score")
