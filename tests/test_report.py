@@ -111,10 +111,10 @@ def accuracy_table(surrogate=(0.05, 0.04, 0.06)):
                          for m, f, c, e in rows])
 
 
-def statistics_table(n=12, bias=0.002, r=0.99):
+def statistics_table(n=12, bias=0.002, r=0.99, stats=("mean_P", "mean_T")):
     rows = []
     for method in ("single simulation", "unet"):
-        for stat in ("mean_P", "mean_T"):
+        for stat in stats:
             rows.append({"method": method, "family": "x", "statistic": stat, "n": n, "r": r,
                          "r_lo": r - 0.01, "r_hi": min(r + 0.005, 1), "r_ceiling": 0.999,
                          "bias": bias, "bias_lo": bias - 0.001, "bias_hi": bias + 0.001,
@@ -257,7 +257,11 @@ def test_statistics_verdict_names_biases_and_small_samples():
     assert "mean P" in text and "more than 1%" in text
     assert "no statistic is biased" in report.statistics_verdict(statistics_table(), "unet")
     low = report.statistics_verdict(statistics_table(r=0.9), "unet")
-    assert "r below both" in low
+    assert "r below both" in low and "more training moulds" not in low
+    # a short orientation r points to the training-set study
+    orientation = report.statistics_verdict(statistics_table(r=0.9, stats=("mean_Sy2",)), "unet")
+    assert "r below both 0.98 and its ceiling - 0.01 on mean Sy2" in orientation
+    assert "more training moulds" in orientation
 
 
 def test_ladder_verdict():
