@@ -61,7 +61,7 @@ def run_training(args) -> None:
     settings = {**default_settings(), **json.loads(args.settings), "num_threads": args.threads}
     ds = condor.open_dataset(args.store).load()
     for store in args.extra_train:
-        ds = with_training_moulds(ds, condor.open_dataset(store).load())
+        ds = with_training_moulds(ds, condor.open_dataset(store))
     if args.n_train is not None:
         split = ds["split"].values.astype("<U8").copy()
         split[usable_samples(ds, "train")[args.n_train:]] = "unused"
@@ -78,7 +78,7 @@ def with_training_moulds(ds, extra):
     training samples (renumbered after ds's; the per-mould replica tables dropped)."""
     if extra.attrs.get("data_config", {}).get("scene") != ds.attrs.get("data_config", {}).get("scene"):
         raise SystemExit("the extra training store has another scene")
-    extra = extra.isel(sample=usable_samples(extra, "train"))
+    extra = extra.isel(sample=usable_samples(extra, "train")).load()  # its training moulds only
     extra = extra.assign_coords(sample=extra["sample"].values + int(ds["sample"].max()) + 1)
     keep = [name for name in ds.data_vars if ds[name].dims[:1] == ("sample",)]
     joined = xr.concat([ds[keep], extra[keep]], dim="sample", data_vars="all",
@@ -129,8 +129,16 @@ def recipe(checkpoint: str) -> dict:
             "changes": json.dumps(changed) if changed else ""}
 
 
-def score_rows(name: str, raw, spread, ensemble) -> list[dict]:
-    """The accuracy stage's figures of one checkpoint's answers on the pooled ensemble."""
+def replica_statistics(ensemble) -> np.ndarray:
+    """(M, R, n_statistics): every replica's whole-mould statistics, computed once."""
+    return np.stack([accuracy_study.statistics_of(ensemble.raw[:, j], ensemble.pixel_size,
+                                                  ensemble.n_cells)
+                     for j in range(ensemble.n_replicas)], axis=1)
+
+
+def score_rows(name: str, raw, spread, ensemble, replica_stats) -> list[dict]:
+    """The accuracy stage's figures of one checkpoint's answers on the pooled ensemble
+    (replica_stats: `replica_statistics(ensemble)`)."""
     answer = accuracy_study.Answer(name, "surrogate", raw, np.zeros(len(raw)), predicted=True)
     errors, _ = accuracy_study.accuracy_tables(ensemble, [answer])
     error = errors[errors["method"] == name].iloc[0]
@@ -142,9 +150,6 @@ def score_rows(name: str, raw, spread, ensemble) -> list[dict]:
                                                for f in ("P", "T", "Sx2", "Sy2")},
            "coverage_90": calibration["coverage_90"], "coverage_50": calibration["coverage_50"],
            "spread_r": calibration["spread_r"]}
-    replica_stats = np.stack([accuracy_study.statistics_of(ensemble.raw[:, j], ensemble.pixel_size,
-                                                           ensemble.n_cells)
-                              for j in range(ensemble.n_replicas)], axis=1)
     predicted = accuracy_study.statistics_of(raw, ensemble.pixel_size, None)
     tethered = ensemble.inputs[:, 1].sum(axis=(1, 2)) > 0
     for subset, keep in (("", np.ones(len(raw), bool)), ("tethered ", tethered)):
@@ -161,12 +166,13 @@ def score_rows(name: str, raw, spread, ensemble) -> list[dict]:
 def run_scoring(args) -> None:
     torch.set_num_threads(args.threads)
     ensemble = pooled_ensemble(args.test)
+    replica_stats = replica_statistics(ensemble)
     key = "|".join(str(Path(s).resolve()) for s in args.test)
     print(f"{len(ensemble.moulds)} moulds x {ensemble.n_replicas} replicas", flush=True)
     rows, errors = [], {}
     for checkpoint in args.checkpoints:
         raw, spread = predictions(checkpoint, ensemble, key)
-        row = score_rows(Path(checkpoint).stem, raw, spread, ensemble)[0]
+        row = score_rows(Path(checkpoint).stem, raw, spread, ensemble, replica_stats)[0]
         rows.append({"name": row.pop("name"), **recipe(checkpoint), **row})
         errors[rows[-1]["name"]] = est.mse_against_expected(
             normalise_predicted(raw).astype(np.float64), ensemble.normalised).corrected
