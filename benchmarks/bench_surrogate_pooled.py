@@ -90,11 +90,17 @@ def with_training_moulds(ds, extra):
 def pooled_ensemble(stores):
     """One Ensemble of every store's replicated test moulds (moulds renumbered 0..M-1)."""
     parts = [reference_ensemble(store) for store in stores]
-    if len({e.n_replicas for e in parts}) != 1 or len({e.pixel_size for e in parts}) != 1:
-        raise SystemExit("the stores differ in their number of replicas or their pixel size")
+    if len({e.pixel_size for e in parts}) != 1:
+        raise SystemExit("the stores differ in their pixel size")
+    most = max(e.n_replicas for e in parts)
 
     def joined(name):
-        return np.concatenate([getattr(e, name) for e in parts])
+        arrays = [getattr(e, name) for e in parts]
+        if name in ("raw", "seconds", "energy_per_cell"):  # NaN-padded to the most replicas
+            arrays = [np.pad(a.astype(np.float64) if name != "raw" else a,
+                             [(0, 0), (0, most - a.shape[1])] + [(0, 0)] * (a.ndim - 2),
+                             constant_values=np.nan) for a in arrays]
+        return np.concatenate(arrays)
 
     return replace(parts[0], moulds=np.arange(sum(len(e.moulds) for e in parts)),
                    raw=joined("raw"), n_cells=joined("n_cells"), inputs=joined("inputs"),
@@ -129,16 +135,9 @@ def recipe(checkpoint: str) -> dict:
             "changes": json.dumps(changed) if changed else ""}
 
 
-def replica_statistics(ensemble) -> np.ndarray:
-    """(M, R, n_statistics): every replica's whole-mould statistics, computed once."""
-    return np.stack([accuracy_study.statistics_of(ensemble.raw[:, j], ensemble.pixel_size,
-                                                  ensemble.n_cells)
-                     for j in range(ensemble.n_replicas)], axis=1)
-
-
 def score_rows(name: str, raw, spread, ensemble, replica_stats) -> list[dict]:
     """The accuracy stage's figures of one checkpoint's answers on the pooled ensemble
-    (replica_stats: `replica_statistics(ensemble)`)."""
+    (replica_stats: `accuracy_study.replica_statistics(ensemble)`)."""
     answer = accuracy_study.Answer(name, "surrogate", raw, np.zeros(len(raw)), predicted=True)
     errors, _ = accuracy_study.accuracy_tables(ensemble, [answer])
     error = errors[errors["method"] == name].iloc[0]
@@ -166,9 +165,9 @@ def score_rows(name: str, raw, spread, ensemble, replica_stats) -> list[dict]:
 def run_scoring(args) -> None:
     torch.set_num_threads(args.threads)
     ensemble = pooled_ensemble(args.test)
-    replica_stats = replica_statistics(ensemble)
+    replica_stats = accuracy_study.replica_statistics(ensemble)
     key = "|".join(str(Path(s).resolve()) for s in args.test)
-    print(f"{len(ensemble.moulds)} moulds x {ensemble.n_replicas} replicas", flush=True)
+    print(f"{len(ensemble.moulds)} moulds x {ensemble.describe_replicas()}", flush=True)
     rows, errors = [], {}
     for checkpoint in args.checkpoints:
         raw, spread = predictions(checkpoint, ensemble, key)

@@ -103,7 +103,28 @@ def test_store_spec_records_scene_split_and_data_config():
     assert spec.attrs["data_config"] == config.data_config()
     assert spec == Config.from_dict(default_config()).store_spec()  # deterministic
     test_replicas = [r for r, s in zip(config.replicas(), config.splits()) if s == "test"]
-    assert set(test_replicas) == {config.simulation["replicas"]["test"]}
+    counts = config.simulation["replicas"]
+    assert set(test_replicas) <= {counts["test"], counts["test_tether_free"]}
+
+
+def test_tether_free_test_moulds_take_their_own_replicas():
+    """simulation.replicas.test_tether_free: the tether-free test moulds (as the generator
+    draws them) take it, every other mould its split's count; null leaves them alone."""
+    from condor.moulds import generate_mould
+
+    config = Config.default(n_moulds=60, split={"test": 30},
+                            moulds={"no_tether_fraction": 0.3},
+                            simulation={"replicas": {"test": 4, "test_tether_free": 11}})
+    params = config.mould_params()
+    expected = [11 if split == "test" and generate_mould(config.seed, i, config.scene.box,
+                                                         params).n_tethers == 0
+                else config.simulation["replicas"][split]
+                for i, split in enumerate(config.splits())]
+    assert list(config.replicas()) == expected and expected.count(11) >= 3
+    assert config.store_spec().replicas == tuple(expected)
+    plain = Config.default(n_moulds=60, split={"test": 30}, moulds={"no_tether_fraction": 0.3},
+                           simulation={"replicas": {"test": 4}})
+    assert set(r for r, s in zip(plain.replicas(), plain.splits()) if s == "test") == {4}
 
 
 def test_the_schema_takes_every_variant_setting_the_library_knows():

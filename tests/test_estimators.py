@@ -127,3 +127,75 @@ def test_expected_r_removes_the_replica_means_noise():
     flat = rng.normal(size=(50, 4))
     assert np.isnan(est.expected_r(rng.normal(size=50), flat.mean(axis=1),
                                    flat.var(axis=1, ddof=1) * 4, 4))
+
+
+def _pad(groups, width=None):
+    """Ragged replicas (a list of (R_i, ...) arrays) -> NaN-padded (M, R, ...)."""
+    width = width or max(len(g) for g in groups)
+    out = np.full((len(groups), width) + groups[0].shape[1:], np.nan)
+    for m, g in enumerate(groups):
+        out[m, :len(g)] = g
+    return out
+
+
+def test_nan_padded_replicas_equal_each_moulds_own_computation():
+    """Moulds holding different numbers of replicas: every estimator equals the same formula
+    applied to each mould's own replicas, one mould at a time."""
+    rng = np.random.default_rng(21)
+    groups = [rng.normal(size=(n, 3, 5)) for n in (4, 20, 4, 7, 2)]
+    padded = _pad(groups)
+    np.testing.assert_array_equal(est.replica_counts(padded), [4, 20, 4, 7, 2])
+    method = rng.normal(size=(5, 3, 5))
+    err = est.mse_against_expected(method, padded)
+    for m, g in enumerate(groups):
+        own = est.mse_against_expected(method[m:m + 1], g[None])
+        assert err.plain[m] == pytest.approx(own.plain[0])
+        assert err.corrected[m] == pytest.approx(own.corrected[0])
+        assert est.noise_ceiling(padded)[m] == pytest.approx(est.noise_ceiling(g[None])[0])
+    other = _pad([rng.normal(size=(n, 3, 5)) for n in (3, 3, 9, 3, 3)])
+    dist = est.ensemble_distance(padded, other)
+    assert dist.corrected[2] == pytest.approx(
+        est.ensemble_distance(padded[2:3, :4], other[2:3, :9]).corrected[0])
+    # one simulation against the rest: only the replicas every mould holds (here 2: k = 1 needs 3)
+    with pytest.raises(ValueError, match="held-out"):
+        est.held_out_error(padded, 1)
+    kept = est.held_out_error(padded[:4], 1)
+    np.testing.assert_allclose(kept.corrected, est.held_out_error(padded[:4, :4], 1).corrected)
+
+
+def test_nan_padded_statistics_recover_the_expected_r_with_unequal_replicas():
+    """Synthetic draws with a known answer: a few moulds scatter 10x more and hold 20
+    replicas, the rest 4; the corrected r recovers 1 / sqrt(1 + e^2) with each mould's own
+    noise term, and the ceiling is the intraclass correlation of one simulation."""
+    rng = np.random.default_rng(5)
+    moulds, error = 3000, 0.3
+    mu = rng.normal(size=moulds)
+    x = mu + error * rng.normal(size=moulds)
+    noisy = rng.random(moulds) < 0.05
+    sigma = np.where(noisy, 3.0, 0.3)
+    counts = np.where(noisy, 20, 4)
+    groups = [mu[m] + sigma[m] * rng.normal(size=counts[m]) for m in range(moulds)]
+    padded = _pad(groups)
+    agreement = est.statistic_agreement(x, padded, n_boot=50)
+    assert agreement["r"] == pytest.approx(1 / np.sqrt(1 + error ** 2), abs=0.015)
+    ceiling = np.sqrt(1 / (1 + np.mean(sigma ** 2)))
+    assert agreement["r_ceiling"] == pytest.approx(ceiling, abs=0.02)
+    # with equal counts the ragged formula is the plain one
+    even = rng.normal(size=(30, 4)) + rng.normal(size=(30, 1))
+    assert est.reliability(_pad(list(even[:, :, None]))[:, :, 0]) == pytest.approx(
+        est.reliability(even))
+
+
+def test_padding_must_be_whole_missing_replicas_at_the_end():
+    reps = np.zeros((2, 3, 4))
+    reps[0, 2, 1] = np.nan
+    with pytest.raises(ValueError, match="complete or missing"):
+        est.as_replicas(reps)
+    reps = np.zeros((2, 3, 4))
+    reps[0, 0] = np.nan
+    with pytest.raises(ValueError, match="pad at the end"):
+        est.as_replicas(reps)
+    reps = np.zeros((2, 3, 4))
+    reps[1, 1:] = np.nan
+    with pytest.raises(ValueError, match="at least 2 replicas per mould, got 1"):
+        est.as_replicas(reps)

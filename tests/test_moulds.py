@@ -593,3 +593,13 @@ def test_accepted_user_moulds_always_hold_mobile_cells():
         lattice = build_lattice(m.polygon, m.tethers, depth=2.0)
         assert (~lattice.fixed).any()
     assert accepted > 50 and refused > 50
+
+
+def test_is_tether_free_is_the_generators_own_choice():
+    """The config sizes replicas from is_tether_free before any mould exists: it must agree
+    with the generated moulds (a high fraction makes both kinds common)."""
+    params = M.MouldParams(no_tether_fraction=0.4)
+    answers = [(M.is_tether_free(7, i, params), M.generate_mould(7, i, params=params).n_tethers == 0)
+               for i in range(40)]
+    assert all(a == b for a, b in answers)
+    assert 5 < sum(a for a, _ in answers) < 35

@@ -12,7 +12,7 @@ from condor.lattice import build_lattice
 from condor.moulds import Mould
 from condor.scenes import get_scene
 from condor.simulate import simulate_lattice
-from condor.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
+from condor.store import StoreSpec, create_store, open_store, sample_index, write_inputs, write_sample
 from condor.studies import accuracy, reference, sweep
 from condor.studies.convergence import convergence
 from condor.studies.ladder import ladder
@@ -131,7 +131,13 @@ def test_reference_ensemble_reads_ok_replicas_from_the_store(tmp_path):
                           "solver": "hybrid", "solver_seconds": 1.0 + r, "hardware": "test"}, status)
     ens = reference.reference_ensemble(path)
     assert list(ens.moulds) == [1, 2]  # mould 4 has only 3 ok replicas
-    assert ens.raw.shape == (2, 4, 8, 8, 8) and list(ens.n_cells) == [101, 102]
+    # every replica of each mould: mould 1's fifth is NaN padding, mould 2's is its own
+    assert ens.raw.shape == (2, 5, 8, 8, 8) and list(ens.n_cells) == [101, 102]
+    assert list(ens.replica_counts) == [4, 5] and ens.describe_replicas() == "4-5 replicas"
+    assert np.isnan(ens.raw[0, 4]).all() and np.isnan(ens.seconds[0, 4])
+    np.testing.assert_array_equal(
+        ens.raw[1, 4], open_store(path)["fields"].isel(sample=sample_index(counts, 2, 4)).values)
+    assert ens.seconds[1, 4] == 5.0
     assert ens.energy_per_cell[0, 0] == pytest.approx(1 / 101)
     np.testing.assert_allclose(ens.normalised[0, 0], normalise(ens.raw[0, 0].astype(float), 101))
     with pytest.raises(ValueError, match="replicas"):

@@ -26,7 +26,7 @@ import yaml
 from condor.anneal import T_INIT, T_RATIO
 from condor.energy import DELTA
 from condor.lattice import SHELL_KBAR
-from condor.moulds import MouldParams
+from condor.moulds import MouldParams, is_tether_free
 from condor.scenes import Scene, get_scene
 from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.minimise import FTOL
@@ -147,9 +147,15 @@ class Config:
                              self.seed)
 
     def replicas(self) -> tuple[int, ...]:
-        """Simulations per mould, from its split."""
+        """Simulations per mould, from its split; a tether-free test mould takes
+        `test_tether_free` when set (its orientation scatters far more: docs/surrogate.md,
+        "Tether-free test moulds")."""
         counts = self.simulation["replicas"]
-        return tuple(int(counts[s]) for s in self.splits())
+        free = counts.get("test_tether_free")
+        params = self.mould_params()
+        return tuple(int(free) if s == "test" and free is not None
+                     and is_tether_free(self.seed, i, params) else int(counts[s])
+                     for i, s in enumerate(self.splits()))
 
     def batches(self) -> list[range]:
         """Mould ids per job: consecutive runs of `batch_size`."""

@@ -12,6 +12,10 @@ so  |m - mean_R|^2 - s^2 / R  (s^2 the unbiased replica variance) is an unbiased
 `per_field=True` keeps the first element axis (the field channel) apart.
 
 Shapes: a method's answers are (M, ...) for M moulds; replicas are (M, R, ...) with R >= 2.
+Moulds may hold different numbers of replicas: the array is then padded to the largest R with
+NaN (a missing replica is NaN in every element, after the mould's own), and each mould's
+noise term uses its own count R_i (a tether-free test mould takes more replicas than the
+others: docs/surrogate.md, "Tether-free test moulds").
 Every figure has a bootstrap interval over moulds (`bootstrap_interval`); a whole-mould
 statistic's Pearson r is taken against the expected statistic in the same way (the replica
 mean's noise removed from its variance, `expected_r`) and comes with its n, its interval and
@@ -42,15 +46,41 @@ class SquaredError:
 
 
 def as_replicas(replicas, min_replicas: int = 2) -> np.ndarray:
-    """`replicas` as a float64 array (M, R, ...); ValueError when R < min_replicas or NaN."""
+    """`replicas` as a float64 array (M, R, ...), NaN-padded (module docs); ValueError when a
+    mould has fewer than min_replicas, or a replica is partly NaN, inf, or before a missing one."""
     array = np.asarray(replicas, dtype=np.float64)
     if array.ndim < 2:
         raise ValueError(f"replicas must have shape (moulds, replicas, ...), got {array.shape}")
-    if array.shape[1] < min_replicas:
-        raise ValueError(f"need at least {min_replicas} replicas per mould, got {array.shape[1]}")
-    if not np.all(np.isfinite(array)):
-        raise ValueError("replicas contain NaN or inf")
+    if np.isinf(array).any():
+        raise ValueError("replicas contain inf")
+    missing = np.isnan(array).reshape(array.shape[:2] + (-1,))
+    present = ~missing.all(axis=2)
+    if (missing.any(axis=2) & present).any():
+        raise ValueError("replicas contain NaN: a replica is either complete or missing (all NaN)")
+    if (present[:, 1:] & ~present[:, :-1]).any():
+        raise ValueError("a missing (all-NaN) replica comes before a present one: pad at the end")
+    counts = present.sum(axis=1)
+    if array.shape[0] and counts.min() < min_replicas:
+        raise ValueError(f"need at least {min_replicas} replicas per mould, got {counts.min()} "
+                         "(a missing replica is all NaN)")
     return array
+
+
+def replica_counts(replicas) -> np.ndarray:
+    """Replicas each mould holds (M,) int: R, or fewer where NaN-padded."""
+    array = as_replicas(replicas, 1)
+    return (~np.isnan(array.reshape(array.shape[:2] + (-1,))[:, :, 0])).sum(axis=1)
+
+
+def _per_mould(values: np.ndarray, like: np.ndarray) -> np.ndarray:
+    """(M,) values broadcast against an (M, ...) array."""
+    return values.reshape(values.shape + (1,) * (like.ndim - 1))
+
+
+def _noise_of_mean(reps: np.ndarray) -> np.ndarray:
+    """Per element, the unbiased variance of the replica mean: s^2 / R_i, (M, ...)."""
+    var = np.nanvar(reps, axis=1, ddof=1)
+    return var / _per_mould(replica_counts(reps), var)
 
 
 def _reduce(x: np.ndarray, per_field: bool) -> np.ndarray:
@@ -61,12 +91,12 @@ def _reduce(x: np.ndarray, per_field: bool) -> np.ndarray:
 
 def replica_mean(replicas) -> np.ndarray:
     """The estimate of the expected fields, (M, ...)."""
-    return as_replicas(replicas, 1).mean(axis=1)
+    return np.nanmean(as_replicas(replicas, 1), axis=1)
 
 
 def replica_variance(replicas) -> np.ndarray:
     """Unbiased per-element variance of one replica about the expected fields, (M, ...)."""
-    return as_replicas(replicas).var(axis=1, ddof=1)
+    return np.nanvar(as_replicas(replicas), axis=1, ddof=1)
 
 
 def mse_against_expected(method, replicas, per_field: bool = False) -> SquaredError:
@@ -76,8 +106,8 @@ def mse_against_expected(method, replicas, per_field: bool = False) -> SquaredEr
     answer = np.asarray(method, dtype=np.float64)
     if answer.shape != reps.shape[:1] + reps.shape[2:]:
         raise ValueError(f"method answers {answer.shape} do not match replicas {reps.shape}")
-    plain = _reduce((answer - reps.mean(axis=1)) ** 2, per_field)
-    noise = _reduce(reps.var(axis=1, ddof=1), per_field) / reps.shape[1]
+    plain = _reduce((answer - np.nanmean(reps, axis=1)) ** 2, per_field)
+    noise = _reduce(_noise_of_mean(reps), per_field)
     return SquaredError(plain, plain - noise)
 
 
@@ -91,9 +121,11 @@ def held_out_error(replicas, k: int, per_field: bool = False) -> SquaredError:
     """Squared error of the mean of `k` simulations against the expected fields, measured on
     disjoint replicas: each rotation takes k consecutive replicas as the method and the other
     R - k (>= 2) as the truth; the R rotations are averaged (each is unbiased). Its corrected
-    value estimates sigma^2 / k: "one simulation" is k = 1."""
+    value estimates sigma^2 / k: "one simulation" is k = 1. With NaN-padded replicas it uses
+    the replicas every mould holds (the first min R_i)."""
     reps = as_replicas(replicas)
-    n = reps.shape[1]
+    n = int(replica_counts(reps).min())
+    reps = reps[:, :n]
     if not 1 <= k <= n - 2:
         raise ValueError(f"held-out error of {k} simulations needs k >= 1 and {k} + 2 <= "
                          f"{n} replicas")
@@ -114,9 +146,8 @@ def ensemble_distance(a, b, per_field: bool = False) -> SquaredError:
     ra, rb = as_replicas(a), as_replicas(b)
     if ra.shape[:1] + ra.shape[2:] != rb.shape[:1] + rb.shape[2:]:
         raise ValueError(f"ensembles {ra.shape} and {rb.shape} are not of the same moulds")
-    plain = _reduce((ra.mean(axis=1) - rb.mean(axis=1)) ** 2, per_field)
-    noise = (_reduce(ra.var(axis=1, ddof=1), per_field) / ra.shape[1]
-             + _reduce(rb.var(axis=1, ddof=1), per_field) / rb.shape[1])
+    plain = _reduce((np.nanmean(ra, axis=1) - np.nanmean(rb, axis=1)) ** 2, per_field)
+    noise = _reduce(_noise_of_mean(ra), per_field) + _reduce(_noise_of_mean(rb), per_field)
     return SquaredError(plain, plain - noise)
 
 
@@ -162,8 +193,8 @@ def reliability(replicas) -> float:
     reps = as_replicas(replicas)
     if reps.ndim != 2:
         raise ValueError(f"a statistic's replicas are (moulds, replicas), got {reps.shape}")
-    within = reps.var(axis=1, ddof=1).mean()
-    between = reps.mean(axis=1).var(ddof=1) - within / reps.shape[1]
+    within = np.nanvar(reps, axis=1, ddof=1).mean()
+    between = np.nanmean(reps, axis=1).var(ddof=1) - _noise_of_mean(reps).mean()
     total = between + within
     return float(np.clip(between / total, 0.0, 1.0)) if total > 0 else float("nan")
 
@@ -173,18 +204,20 @@ def _pairs_r(columns: np.ndarray) -> float:
     return pearson_r(columns[:, 0], columns[:, 1])
 
 
-def expected_r(method, replica_mean, replica_var, n_replicas: int) -> float:
+def expected_r(method, replica_mean, replica_var, n_replicas) -> float:
     """Pearson r of a method against the *expected* statistic mu, with the finite-replica
     noise removed: cov(method, mean_R) is unbiased for cov(method, mu) (the method is
-    independent of the replicas) and var(mean_R) - mean(s^2) / R for var(mu). NaN when the
-    moulds' expected statistics do not vary beyond that noise; clipped to [-1, 1]."""
+    independent of the replicas) and var(mean_R) - mean(s^2 / R) for var(mu) (n_replicas: R,
+    or R_i per mould). NaN when the moulds' expected statistics do not vary beyond that
+    noise; clipped to [-1, 1]."""
     x = np.asarray(method, dtype=np.float64)
     m = np.asarray(replica_mean, dtype=np.float64)
     if x.size < 2:
         return float("nan")
     dx, dm = x - x.mean(), m - m.mean()
     var_x = (dx * dx).mean()
-    var_mu = (dm * dm).mean() - np.mean(replica_var) / n_replicas * (x.size - 1) / x.size
+    var_mu = (dm * dm).mean() - np.mean(np.asarray(replica_var, dtype=np.float64)
+                                        / n_replicas) * (x.size - 1) / x.size
     if not (var_x > 0 and var_mu > 0):
         return float("nan")
     return float(np.clip((dx * dm).mean() / np.sqrt(var_x * var_mu), -1.0, 1.0))
@@ -205,11 +238,11 @@ def statistic_agreement(method, replicas, n_boot: int = BOOTSTRAP_SAMPLES,
     answer = np.asarray(method, dtype=np.float64)
     if answer.shape != reps.shape[:1] or reps.ndim != 2:
         raise ValueError(f"method statistic {answer.shape} does not match replicas {reps.shape}")
-    mean = reps.mean(axis=1)
-    columns = np.stack([answer, mean, reps.var(axis=1, ddof=1)], axis=1)
-    n_reps = reps.shape[1]
+    mean = np.nanmean(reps, axis=1)
+    columns = np.stack([answer, mean, np.nanvar(reps, axis=1, ddof=1), replica_counts(reps)],
+                       axis=1)
     r, r_lo, r_hi = bootstrap_interval(
-        columns, lambda c: expected_r(c[:, 0], c[:, 1], c[:, 2], n_reps), n_boot, seed=seed)
+        columns, lambda c: expected_r(c[:, 0], c[:, 1], c[:, 2], c[:, 3]), n_boot, seed=seed)
     r_plain, r_plain_lo, r_plain_hi = bootstrap_interval(columns, _pairs_r, n_boot, seed=seed)
     with np.errstate(divide="ignore", invalid="ignore"):
         ratio = answer / mean - 1.0

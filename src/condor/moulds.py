@@ -279,9 +279,22 @@ class _Choices:
     double_bars: str  # double mirror bars only
 
 
+def _draws_no_tethers(rng: np.random.Generator, params: MouldParams) -> bool:
+    """The generator's first draw from a mould's rng: is it tether-free?"""
+    return bool(rng.random() < params.no_tether_fraction)
+
+
+def is_tether_free(seed: int, mould_id: int, params: MouldParams = MouldParams()) -> bool:
+    """Whether mould `mould_id` of dataset `seed` has no tethers, without drawing its
+    geometry (the first draw of `generate_mould`): the config sizes a tether-free test mould's
+    replicas from it before any mould exists."""
+    _check_ids(seed, mould_id)
+    return _draws_no_tethers(np.random.default_rng([int(seed), int(mould_id)]), params)
+
+
 def _draw_choices(rng: np.random.Generator, params: MouldParams) -> _Choices:
     """Every categorical choice, drawn once per mould in a fixed order (fixed rng use)."""
-    no_tethers = bool(rng.random() < params.no_tether_fraction)
+    no_tethers = _draws_no_tethers(rng, params)
     symmetry = SYMMETRIES[int(rng.integers(len(SYMMETRIES)))]
     rotation_order = int(rng.integers(params.order_min, params.order_max + 1))
     copies = int(rng.integers(params.copies_min, params.copies_max + 1))

@@ -134,8 +134,8 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     replicated test mould (they need no sweep; the default's 100 test moulds narrow an
     interval about 3x against the study's 12)."""
     ensemble = reference_ensemble(store, study_moulds(config))
-    log.info("reference ensemble: %d test moulds x %d replicas", len(ensemble.moulds),
-             ensemble.n_replicas)
+    log.info("reference ensemble: %d test moulds x %s", len(ensemble.moulds),
+             ensemble.describe_replicas())
     predictors = _predictors(store, checkpoints)
     predicted, calibration = _predictor_answers(predictors, ensemble)
     answers = _simulation_answers(ensemble, sweep_npzs) + predicted
@@ -145,8 +145,8 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
                (out_calibration, _calibration_frame(calibration))]
     if out_statistics_test is not None:
         every = reference_ensemble(store, config.test_moulds())
-        log.info("predictors on every test mould: %d x %d replicas", len(every.moulds),
-                 every.n_replicas)
+        log.info("predictors on every test mould: %d x %s", len(every.moulds),
+                 every.describe_replicas())
         predicted, calibration = _predictor_answers(predictors, every)
         every_errors, every_statistics = accuracy_study.accuracy_tables(every, predicted,
                                                                         seed=config.seed)
@@ -159,7 +159,7 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
         frame.to_csv(path, index=False)
     plots.accuracy_chart(table, out_chart, title=(
         f"cost per mould against error vs the expected fields, scene {config.scene.name!r}, "
-        f"{len(ensemble.moulds)} test moulds x {ensemble.n_replicas} replicas"))
+        f"{len(ensemble.moulds)} test moulds x {ensemble.describe_replicas()}"))
     log.info("\n%s", table[["method", "cpu_s_per_mould", "field_error", "field_error_lo",
                             "field_error_hi"]].to_string(index=False))
     return table, statistics
@@ -175,18 +175,19 @@ def spread_maps(ensemble, calibration: list, out_png, n: int = 3) -> None:
     their predicted spread and the replicas' standard deviation (raw units)."""
     rows = []
     if calibration:
-        (row, raw, spread), replica_std = calibration[0], ensemble.raw.std(axis=1, ddof=1)
+        (row, raw, spread), replica_std = calibration[0], np.nanstd(ensemble.raw, axis=1, ddof=1)
         for m in range(min(n, len(raw))):
             images = []
             for k, name in ((1, "T"), (2, "Sx2")):
                 images += [(f"{name} predicted", raw[m, k]),
                            (f"{name} spread, predicted", spread[m, k]),
-                           (f"{name} std of {ensemble.n_replicas} replicas", replica_std[m, k])]
+                           (f"{name} std of {ensemble.replica_counts[m]} replicas",
+                            replica_std[m, k])]
             rows.append((f"mould {int(ensemble.moulds[m])}", images))
         title = (f"{row['method']}: the reproducibility map (predicted spread of one simulation) "
                  "against the replicas' scatter")
     else:
-        rows.append(("no surrogate with a spread head", [("expected T", ensemble.raw[0, :, 1].mean(0))]))
+        rows.append(("no surrogate with a spread head", [("expected T", np.nanmean(ensemble.raw[0, :, 1], axis=0))]))
         title = "no reproducibility map"
     plots.image_grid(rows, out_png, title)
 

@@ -116,8 +116,11 @@ def _error_row(method: str, family: str, cpu: float, err: est.SquaredError,
 def _statistic_rows(method: str, family: str, answer_stats: np.ndarray,
                     replica_stats: np.ndarray, seed: int) -> list[dict]:
     rows = []
+    present = replica_present(replica_stats)
     for k, name in enumerate(STATISTICS):
-        keep = np.isfinite(answer_stats[:, k]) & np.isfinite(replica_stats[:, :, k]).all(axis=1)
+        # a mould counts when the answer and every replica it holds give the statistic
+        usable = np.isfinite(replica_stats[:, :, k]) | ~present
+        keep = np.isfinite(answer_stats[:, k]) & usable.all(axis=1) & (present.sum(axis=1) >= 2)
         agreement = est.statistic_agreement(answer_stats[keep, k], replica_stats[keep][:, :, k],
                                             seed=seed) if keep.sum() >= 2 else \
             {"n": int(keep.sum()), "informative": False}
@@ -127,16 +130,32 @@ def _statistic_rows(method: str, family: str, answer_stats: np.ndarray,
     return rows
 
 
+def replica_present(replica_stats: np.ndarray) -> np.ndarray:
+    """(M, R) whether each replica exists: replica_stats (M, R, n) is NaN-padded after a
+    mould's own replicas (Ensemble)."""
+    return ~np.isnan(replica_stats).all(axis=2)
+
+
+def replica_statistics(ensemble) -> np.ndarray:
+    """(M, R, n_statistics) of every replica, NaN where a mould holds fewer than R."""
+    out = np.full(ensemble.raw.shape[:2] + (len(STATISTICS),), np.nan)
+    counts = ensemble.replica_counts
+    for j in range(ensemble.n_replicas):
+        has = counts > j
+        out[has, j] = statistics_of(ensemble.raw[has, j], ensemble.pixel_size,
+                                    ensemble.n_cells[has])
+    return out
+
+
 def accuracy_tables(ensemble, answers, seed: int = 0) -> tuple[pd.DataFrame, pd.DataFrame]:
     """(accuracy, statistics) tables (module docstring) of `answers` on `ensemble`."""
-    truth = ensemble.normalised  # (M, R, 8, H, W)
-    m, r = truth.shape[:2]
-    replica_stats = np.stack([statistics_of(ensemble.raw[:, j], ensemble.pixel_size,
-                                          ensemble.n_cells) for j in range(r)], axis=1)
-    solver_cpu = float(np.median(ensemble.seconds))
+    truth = ensemble.normalised  # (M, R, 8, H, W), NaN-padded
+    common = int(ensemble.replica_counts.min())
+    replica_stats = replica_statistics(ensemble)
+    solver_cpu = float(np.nanmedian(ensemble.seconds))
     accuracy, statistics = [], []
     for k, label in HELD_OUT:
-        if k + 2 > r:
+        if k + 2 > common:
             continue
         err = est.held_out_error(truth, k)
         per_field = est.held_out_error(truth, k, per_field=True).corrected

@@ -33,9 +33,9 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
         if int(mould.mould_id) != int(ensemble.moulds[m]):
             raise ValueError(f"mould {mould.mould_id} is not the ensemble's mould "
                              f"{ensemble.moulds[m]} at position {m}")
-        energies = ensemble.energy_per_cell[m]
+        energies = ensemble.energy_per_cell[m][np.isfinite(ensemble.energy_per_cell[m])]
         rows.append({"mould": int(mould.mould_id), "rung": "dataset solver", "budget": np.nan,
-                     "runs": truth.shape[1], "energy_per_cell": float(np.median(energies)),
+                     "runs": len(energies), "energy_per_cell": float(np.median(energies)),
                      "energy_min": float(energies.min()), "energy_max": float(energies.max()),
                      "distance_to_dataset": 0.0,
                      "spread": est.root_mean(est.noise_ceiling(truth[m:m + 1]))})

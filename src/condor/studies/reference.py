@@ -55,7 +55,9 @@ def anneal_then_relax(mould, depth: float, budget: float, seed: int,
 class Ensemble:
     """Replicas of M moulds: raw fields (M, R, 8, H, W), cell counts N_c (M,), inputs
     (M, 2, H, W) (the masks), the pixel side in l0, per replica (M, R) its CPU seconds and
-    energy per cell, and the lattice channels (M, 2, H, W; condor.inputs)."""
+    energy per cell, and the lattice channels (M, 2, H, W; condor.inputs). A mould with fewer
+    replicas than R is NaN-padded after its own (condor.estimators), as the tether-free test
+    moulds hold more."""
 
     moulds: np.ndarray
     raw: np.ndarray
@@ -74,13 +76,24 @@ class Ensemble:
 
     @property
     def n_replicas(self) -> int:
+        """R, the most replicas a mould holds."""
         return int(self.raw.shape[1])
+
+    @property
+    def replica_counts(self) -> np.ndarray:
+        """Replicas each mould holds (M,)."""
+        return np.isfinite(self.seconds).sum(axis=1)
+
+    def describe_replicas(self) -> str:
+        """'4 replicas', or '4-20 replicas' when moulds hold different numbers."""
+        lo, hi = int(self.replica_counts.min()), int(self.replica_counts.max())
+        return f"{lo} replicas" if lo == hi else f"{lo}-{hi} replicas"
 
 
 def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ensemble:
-    """The ok replicas of `moulds` (default: every replicated mould) from the store, the same
-    number R for each (the smallest count among them; a mould with fewer than MIN_REPLICAS ok
-    replicas is left out). ValueError when no mould is left."""
+    """The ok replicas of `moulds` (default: every replicated mould) from the store, every ok
+    replica of each (NaN-padded to the largest count: Ensemble; a mould with fewer than
+    MIN_REPLICAS ok replicas is left out). ValueError when no mould is left."""
     ds = open_store(store)
     mould_of = ds["mould"].values
     replica_of = ds["replica"].values
@@ -96,15 +109,23 @@ def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ens
     if not chosen:
         raise ValueError(f"{store}: no mould has {MIN_REPLICAS} or more ok replicas (raise "
                          "simulation.replicas.test in the config)")
-    r = min(len(s) for _, s in chosen)
-    samples = np.stack([s[:r] for _, s in chosen])
-    flat = samples.ravel()
-    raw = ds["fields"].isel(sample=flat).values.reshape(samples.shape + ds["fields"].shape[1:])
+    r = max(len(s) for _, s in chosen)
+    samples = np.stack([np.pad(s, (0, r - len(s)), constant_values=-1) for _, s in chosen])
+    present = samples >= 0
+    flat = samples[present]
+    raw = np.full(samples.shape + ds["fields"].shape[1:], np.nan, dtype=ds["fields"].dtype)
+    raw[present] = ds["fields"].isel(sample=flat).values
+
+    def per_replica(values):
+        out = np.full(samples.shape, np.nan)
+        out[present] = values[flat]
+        return out
+
     return Ensemble(
         moulds=np.array([m for m, _ in chosen]), raw=raw,
         n_cells=ds["n_cells"].values[samples[:, 0]].astype(np.float64),
         inputs=ds["inputs"].isel(sample=samples[:, 0]).values,
         pixel_size=float(ds.attrs["pixel_size"]),
-        seconds=ds["solver_seconds"].values[flat].reshape(samples.shape),
-        energy_per_cell=(ds["energy"].values[flat] / ds["n_cells"].values[flat]).reshape(samples.shape),
+        seconds=per_replica(ds["solver_seconds"].values.astype(np.float64)),
+        energy_per_cell=per_replica(ds["energy"].values / ds["n_cells"].values),
         lattice=ds["lattice"].isel(sample=samples[:, 0]).values)

@@ -47,15 +47,18 @@ def _check(mean, spread, replicas, mask):
 def interval_coverage(mean, spread, replicas, mask, levels=LEVELS, fields=None) -> dict:
     """Per mould (M,), for each level q: the fraction of replica values (every replica, every
     field in `fields` (indices; default all), every pixel in `mask`) inside mean -/+ z_q
-    spread. mean, spread (M, F, H, W); replicas (M, R, F, H, W); mask (M, H, W)."""
+    spread. mean, spread (M, F, H, W); replicas (M, R, F, H, W), NaN-padded where a mould
+    holds fewer (condor.estimators: only its own count); mask (M, H, W)."""
     mean, spread, replicas, mask = _check(mean, spread, replicas, mask)
     chosen = slice(None) if fields is None else list(fields)
     distance = np.abs(replicas - mean[:, None])[:, :, chosen]
     width = spread[:, None, chosen]
+    present = ~np.isnan(distance)
     out = {}
     for level in levels:
         inside = distance <= z_of(level) * width
-        per_mould = [inside[m][..., mask[m]].mean() for m in range(len(mean))]
+        per_mould = [inside[m][..., mask[m]].sum() / present[m][..., mask[m]].sum()
+                     for m in range(len(mean))]
         out[level] = np.asarray(per_mould)
     return out
 
@@ -68,7 +71,7 @@ def spread_agreement(spread, replicas, mask, fields=None) -> dict:
     spread = np.asarray(spread, np.float64)
     _check(spread, spread, replicas, mask)
     chosen = slice(None) if fields is None else list(fields)
-    replica_std = np.asarray(replicas, np.float64).std(axis=1, ddof=1)[:, chosen]
+    replica_std = np.nanstd(np.asarray(replicas, np.float64), axis=1, ddof=1)[:, chosen]
     spread = spread[:, chosen]
     mask = np.asarray(mask, bool)
     predicted = np.array([np.sqrt((spread[m][..., mask[m]] ** 2).mean()) for m in range(len(spread))])
