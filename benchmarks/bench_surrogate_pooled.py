@@ -18,7 +18,8 @@ surrogate's largest errors.
     PYTHONPATH=src python benchmarks/bench_surrogate_pooled.py score --test STORE [STORE ...] \\
         --out CSV DIR/NAME.pt [DIR/NAME.pt ...]
 
-Every store must share the scene and the number of test replicas. Predictions are cached
+Every store must share the scene (moulds with fewer replicas are NaN-padded, as in the
+accuracy stage: condor.estimators). Predictions are cached
 beside each checkpoint (NAME_pooled.npz, keyed by the stores), so scoring more checkpoints
 later re-predicts only the new ones.
 """

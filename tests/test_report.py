@@ -257,10 +257,10 @@ def test_statistics_verdict_names_biases_and_small_samples():
     assert "mean P" in text and "more than 1%" in text
     assert "no statistic is biased" in report.statistics_verdict(statistics_table(), "unet")
     low = report.statistics_verdict(statistics_table(r=0.9), "unet")
-    assert "r below both" in low and "more training moulds" not in low
+    assert "The r is below both" in low and "more training moulds" not in low
     # a short orientation r points to the training-set study
     orientation = report.statistics_verdict(statistics_table(r=0.9, stats=("mean_Sy2",)), "unet")
-    assert "r below both 0.98 and its ceiling - 0.01 on mean Sy2" in orientation
+    assert "The r is below both 0.98 and its ceiling - 0.01 on mean Sy2" in orientation
     assert "more training moulds" in orientation
 
 
@@ -348,3 +348,11 @@ def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):
         assert not any(box.x0 <= bx <= box.x1 and min(b1, box.y1) > max(b0, box.y0)
                        for (bx, b0), (_, b1) in bar_px)
     plt.close(fig)
+
+
+def test_dataset_line_names_the_tether_free_test_moulds_replicas():
+    summary = pd.DataFrame({"mould": [0, 1, 1], "state": ["ok", "ok", "failed"]})
+    plain = report._dataset_line(Config.default(), summary)
+    assert "test 8." in plain and "tether-free" not in plain and "1 failed" in plain
+    config = Config.default(simulation={"replicas": {"test": 4, "test_tether_free": 20}})
+    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(config, summary)

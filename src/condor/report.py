@@ -280,8 +280,8 @@ def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:
     words = [f"{method} on {n} test moulds against the expected statistics (the replica means):"]
     words.append(f"biased by more than 1% on {', '.join(biased)}." if biased
                  else "no statistic is biased by more than 1%.")
-    words.append(f"r below both 0.98 and its ceiling - 0.01 on {', '.join(short)}." if short
-                 else "every r is at least 0.98 or within 0.01 of its ceiling.")
+    words.append(f"The r is below both 0.98 and its ceiling - 0.01 on {', '.join(short)}."
+                 if short else "Every r is at least 0.98 or within 0.01 of its ceiling.")
     if any(r.statistic in ORIENTATION_STATISTICS for r in short_rows):
         words.append(MORE_MOULDS)
     return " ".join(words)
@@ -321,7 +321,9 @@ def _dataset_line(config, summary: pd.DataFrame) -> str:
     replicas = config.simulation["replicas"]
     return (f"Scene {config.scene.name!r} ({config.scene.box:g} l0 box, {config.scene.pixels} px), "
             f"{moulds} moulds (seed {config.seed}), solver {config.solver()[0]!r}; replicas per "
-            f"mould: train {replicas['train']}, val {replicas['val']}, test {replicas['test']}. "
+            f"mould: train {replicas['train']}, val {replicas['val']}, test {replicas['test']}"
+            + (f" (tether-free test moulds {replicas['test_tether_free']})"
+               if replicas.get("test_tether_free") is not None else "") + ". "
             f"{int(ok.sum())} of {len(summary)} simulations finished ok, "
             f"{int(summary['state'].eq('failed').sum())} failed.")
 
