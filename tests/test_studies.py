@@ -172,3 +172,50 @@ def test_ladder_finds_its_own_recipe_in_the_same_states():
     assert rung["distance_to_dataset"] < rung["spread"]
     with pytest.raises(ValueError, match="not the ensemble"):
         ladder(ens, [small_mould(5)], SCENE, budgets=(200,), n_seeds=2, dataset_seed=0)
+
+
+def test_accuracy_tables_take_each_moulds_own_replicas():
+    """A few moulds scatter 5x more and hold 16 replicas, NaN-padded beside the others' 4
+    (as the tether-free test moulds): the tables recover the known field error of an answer
+    off by 0.2 and a perfect answer's r of 1 on every mould, the held-out rows use the 4
+    replicas every mould holds, and the seconds ignore the padding."""
+    rng = np.random.default_rng(4)
+    ens, mu, n_cells, n_pixels = synthetic_ensemble(rng, moulds=60, replicas=16)
+    noisy = np.arange(60) % 10 == 0
+    raw = ens.raw.astype(np.float64)
+    scaled = mu[:, None] * (n_cells / n_pixels)[:, None, None, None, None]
+    raw[noisy] = scaled[noisy] + 5 * (raw[noisy] - scaled[noisy])  # 5x the scatter
+    raw[~noisy, 4:] = np.nan
+    seconds = np.full(raw.shape[:2], 2.0)
+    seconds[~noisy, 4:] = np.nan
+    seconds[noisy] = 3.0
+    ragged = reference.Ensemble(moulds=ens.moulds, raw=raw.astype(np.float32),
+                                n_cells=n_cells, inputs=ens.inputs, pixel_size=0.5,
+                                seconds=seconds, energy_per_cell=np.full(raw.shape[:2], 0.01))
+    assert list(np.unique(ragged.replica_counts)) == [4, 16]
+    raw_of = lambda normalised: normalised * (n_cells / n_pixels)[:, None, None, None]  # noqa: E731
+    offset = np.zeros(mu.shape[1:])
+    offset[1:] = 0.2
+    answers = [accuracy.Answer("perfect", "test", raw_of(mu), np.ones(60)),
+               accuracy.Answer("offset", "test", raw_of(mu + offset), np.ones(60))]
+    table, stats = accuracy.accuracy_tables(ragged, answers)
+    rows = table.set_index("method")
+    assert "mean of 4 simulations" not in rows.index  # needs 6 replicas on every mould
+    assert rows.loc["single simulation", "cpu_s_per_mould"] == 2.0  # the median, padding ignored
+    row = rows.loc["offset"]
+    assert row.field_error_lo - 0.01 <= 0.2 * np.sqrt(7 / 8) <= row.field_error_hi + 0.01
+    s = stats.set_index(["method", "statistic"])
+    assert s.loc[("perfect", "mean_Sx2"), "n"] == 60
+    assert s.loc[("perfect", "mean_Sx2"), "r"] > 0.97
+    # the same r from the replicas' statistics, one mould at a time
+    per_mould = [accuracy.statistics_of(raw[m, :ragged.replica_counts[m]], 0.5,
+                                        np.repeat(n_cells[m], ragged.replica_counts[m]))
+                 for m in range(60)]
+    k = list(accuracy.STATISTICS).index("mean_Sx2")
+    means = np.array([p[:, k].mean() for p in per_mould])
+    noise = np.array([p[:, k].var(ddof=1) / len(p) for p in per_mould])
+    answer = accuracy.statistics_of(raw_of(mu), 0.5, None)[:, k]
+    dx, dm = answer - answer.mean(), means - means.mean()
+    direct = (dx * dm).mean() / np.sqrt((dx * dx).mean() * ((dm * dm).mean()
+                                                           - noise.mean() * 59 / 60))
+    assert s.loc[("perfect", "mean_Sx2"), "r"] == pytest.approx(min(direct, 1.0))
