@@ -486,13 +486,13 @@ def test_interval_coverage_counts_only_the_replicas_a_mould_holds():
     """NaN-padded replicas (a mould with fewer): coverage and spread equal those of the
     mould's own replicas, never counting padding as outside."""
     rng = np.random.default_rng(3)
-    mean, std = rng.normal(size=(2, 1, 6, 6)), np.full((2, 1, 6, 6), 1.0)
-    replicas = mean[:, None] + rng.normal(size=(2, 30, 1, 6, 6))
+    mean, std = rng.normal(size=(3, 1, 6, 6)), rng.uniform(0.5, 1.5, size=(3, 1, 6, 6))
+    replicas = mean[:, None] + std[:, None] * rng.normal(size=(3, 30, 1, 6, 6))
     replicas[0, 10:] = np.nan
-    mask = np.ones((2, 6, 6), bool)
+    mask = np.ones((3, 6, 6), bool)
     padded = interval_coverage(mean, std, replicas, mask)[0.9]
     own = interval_coverage(mean[:1], std[:1], replicas[:1, :10], mask[:1])[0.9]
     assert padded[0] == pytest.approx(own[0]) and padded[0] > 0.8
     agree = spread_agreement(std, replicas, mask)
     assert agree["replica"][0] == pytest.approx(
-        spread_agreement(std[:1], replicas[:1, :10], mask[:1])["replica"][0])
+        spread_agreement(std[:2], replicas[:2, :10], mask[:2])["replica"][0])
