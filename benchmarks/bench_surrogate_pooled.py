@@ -98,8 +98,7 @@ def pooled_ensemble(stores):
     def joined(name):
         arrays = [getattr(e, name) for e in parts]
         if name in ("raw", "seconds", "energy_per_cell"):  # NaN-padded to the most replicas
-            arrays = [np.pad(a.astype(np.float64) if name != "raw" else a,
-                             [(0, 0), (0, most - a.shape[1])] + [(0, 0)] * (a.ndim - 2),
+            arrays = [np.pad(a, [(0, 0), (0, most - a.shape[1])] + [(0, 0)] * (a.ndim - 2),
                              constant_values=np.nan) for a in arrays]
         return np.concatenate(arrays)
 

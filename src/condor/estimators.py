@@ -68,7 +68,11 @@ def as_replicas(replicas, min_replicas: int = 2) -> np.ndarray:
 
 def replica_counts(replicas) -> np.ndarray:
     """Replicas each mould holds (M,) int: R, or fewer where NaN-padded."""
-    array = as_replicas(replicas, 1)
+    return _counts(as_replicas(replicas, 1))
+
+
+def _counts(array: np.ndarray) -> np.ndarray:
+    """replica_counts of an array as_replicas has already checked (a replica is whole)."""
     return (~np.isnan(array.reshape(array.shape[:2] + (-1,))[:, :, 0])).sum(axis=1)
 
 
@@ -80,7 +84,7 @@ def _per_mould(values: np.ndarray, like: np.ndarray) -> np.ndarray:
 def _noise_of_mean(reps: np.ndarray) -> np.ndarray:
     """Per element, the unbiased variance of the replica mean: s^2 / R_i, (M, ...)."""
     var = np.nanvar(reps, axis=1, ddof=1)
-    return var / _per_mould(replica_counts(reps), var)
+    return var / _per_mould(_counts(reps), var)
 
 
 def _reduce(x: np.ndarray, per_field: bool) -> np.ndarray:

@@ -81,8 +81,8 @@ class Ensemble:
 
     @property
     def replica_counts(self) -> np.ndarray:
-        """Replicas each mould holds (M,)."""
-        return np.isfinite(self.seconds).sum(axis=1)
+        """Replicas each mould holds (M,): those not NaN-padded."""
+        return (~np.isnan(self.raw.reshape(self.raw.shape[:2] + (-1,))[:, :, 0])).sum(axis=1)
 
     def describe_replicas(self) -> str:
         """'4 replicas', or '4-20 replicas' when moulds hold different numbers."""
