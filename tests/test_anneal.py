@@ -4,9 +4,11 @@ import numpy as np
 import pytest
 from shapely.geometry import box
 
+import dataclasses
+
 from condor.anneal import (
-    INIT_AMP_ORI, INIT_AMP_POS, MAX_STEP_ORI, T_INIT, TARGET_ACCEPT, anneal, anneal_kernel,
-    neighbour_lists, trial_energy_change,
+    INIT_AMP_ORI, INIT_AMP_POS, MAX_STEP_ORI, T_INIT, TARGET_ACCEPT, AnnealRun, anneal,
+    anneal_kernel, neighbour_lists, trial_energy_change,
 )
 from condor.energy import DELTA, bond_energies, random_orientations, total_energy
 from condor.lattice import build_lattice
@@ -135,3 +137,173 @@ def test_long_anneal_keeps_adapting_its_orientation_step():
     # The target is met in every sweep but the hot start (acceptance > 40% at the cap).
     assert info["anneal_accept_ori"] == pytest.approx(TARGET_ACCEPT, abs=0.06)
     assert info["anneal_final_step_ori"] < 0.01 * MAX_STEP_ORI
+
+
+# --- resumable anneals ---------------------------------------------------------------------
+
+def test_anneal_resumed_from_checkpoints_is_bit_identical(mould, tmp_path):
+    """Cut into segments, saved and loaded by fresh runs (as a killed process resumes), and
+    through anneal(checkpoint=...): the same bits as one uninterrupted anneal."""
+    lat, ori = mould
+    ref_pos, ref_ori, ref_info = anneal(lat, lat.positions, ori, 400, [5, 0])
+    ck = tmp_path / "run.npz"
+    for stop in (1, 12345, 50001):  # mid-sweep cuts too
+        run = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
+        if ck.exists():
+            run.load(ck)
+        run.advance(stop - run.trial)
+        run.save(ck)
+    pos, o, info = anneal(lat, lat.positions, ori, 400, [5, 0], checkpoint=ck,
+                          checkpoint_seconds=0.0)
+    assert np.array_equal(pos, ref_pos) and np.array_equal(o, ref_ori)
+    same = {k: v for k, v in info.items() if not k.endswith("seconds")}
+    assert same == {k: v for k, v in ref_info.items() if not k.endswith("seconds")}
+    assert info["anneal_resumed_seconds"] > 0.0
+    # a finished checkpoint returns at once, with the same result
+    again = anneal(lat, lat.positions, ori, 400, [5, 0], checkpoint=ck)
+    assert np.array_equal(again[0], ref_pos)
+
+
+def test_checkpoint_of_another_run_or_corrupt_is_refused(mould, tmp_path):
+    lat, ori = mould
+    ck = tmp_path / "run.npz"
+    run = AnnealRun(lat, lat.positions, ori, 50, [5, 0])
+    run.advance(1000)
+    run.save(ck)
+    with pytest.raises(ValueError, match="its seed is"):
+        AnnealRun(lat, lat.positions, ori, 50, [6, 0]).load(ck)
+    with pytest.raises(ValueError, match="its n_trials is"):
+        anneal(lat, lat.positions, ori, 60, [5, 0], checkpoint=ck)
+    ck.write_bytes(ck.read_bytes()[:200])  # truncated by a crash of the disk
+    with pytest.raises(ValueError, match="not a readable anneal checkpoint.*delete it"):
+        anneal(lat, lat.positions, ori, 50, [5, 0], checkpoint=ck)
+
+
+# --- the sampler samples Boltzmann (fixed T, fixed steps) ----------------------------------
+
+def _one_free_cell():
+    """A lattice whose only mobile cell is the most central one, with no wall in reach."""
+    lat0 = build_lattice(box(0, 0, 5, 4), np.zeros((0, 3)), 3.0)
+    cell = int(np.argmin(np.linalg.norm(lat0.positions - lat0.positions.mean(0), axis=1)))
+    fixed = np.ones(lat0.n_cells, bool)
+    fixed[cell] = False
+    ori = random_orientations(lat0.n_cells, np.random.default_rng(1))
+    return dataclasses.replace(lat0, fixed=fixed), cell, ori
+
+
+def _cell_energy(lat, ori, cell, r, s):
+    """The free cell's bond energies at positions r and orientations s (..., 3): the model's
+    formula written again in numpy, independent of the kernels."""
+    b = lat.cell_bonds[lat.cell_ptr[cell]:lat.cell_ptr[cell + 1]]
+    other = np.where(lat.bond_i[b] == cell, lat.bond_j[b], lat.bond_i[b])
+    l = lat.positions[other] - r[..., None, :]
+    d = np.linalg.norm(l, axis=-1)
+    lhat = l / d[..., None]
+    ci = np.sum(lhat * s[..., None, :], axis=-1)
+    cj = np.sum(lhat * ori[other], axis=-1)
+    rest = lat.bond_rest[b] * (1 - DELTA / 2 * (2 - ci**2 - cj**2))
+    return 0.5 * np.sum(lat.bond_kbar[b] * (d - rest) ** 2, axis=-1)
+
+
+def _fixed_t_samples(lat, ori, temp, steps, n_samples, thin, seed, start=None):
+    """States of a Metropolis chain at `temp` with fixed steps (dr, ds), every `thin` trials."""
+    pos = lat.positions if start is None else start
+    run = AnnealRun(lat, pos, ori, 1e9, [seed], t_init=temp, t_ratio=1.0, adapt=False)
+    run.amp[:] = np.asarray(steps) / np.sqrt(temp)
+    out_pos, out_ori = [], []
+    for _ in range(n_samples):
+        run.advance(thin)
+        out_pos.append(run.pos[~lat.fixed].copy())
+        out_ori.append(run.ori[~lat.fixed].copy())
+    return np.array(out_pos), np.array(out_ori)
+
+
+def _batch_se(values, batches=50):
+    """Standard error of the mean of correlated samples (n, ...) by batch means."""
+    b = values[: len(values) // batches * batches].reshape((batches, -1) + values.shape[1:])
+    return b.mean(axis=1).std(axis=0, ddof=1) / np.sqrt(batches)
+
+
+def test_orientation_moves_sample_boltzmann_against_quadrature():
+    """One cell, positions frozen: its orientation's second moments <s s^T> under
+    exp(-E(s)/T) by quadrature over the sphere, against the chain at a large step (ds 0.8,
+    where the former cube proposal missed <sx^2> by 8 standard errors)."""
+    lat, cell, ori = _one_free_cell()
+    temp = 0.003
+    n = 400  # quadrature: midpoints in cos(theta) and phi
+    cos_t = (np.arange(n) + 0.5) / n * 2 - 1
+    phi = (np.arange(2 * n) + 0.5) / (2 * n) * 2 * np.pi
+    c, p = np.meshgrid(cos_t, phi, indexing="ij")
+    sin_t = np.sqrt(1 - c**2)
+    s = np.stack([sin_t * np.cos(p), sin_t * np.sin(p), c], axis=-1)
+    e = _cell_energy(lat, ori, cell, np.broadcast_to(lat.positions[cell], s.shape), s)
+    w = np.exp(-(e - e.min()) / temp)
+    expected = np.einsum("ij,ija,ijb->ab", w / w.sum(), s, s)
+    assert expected[0, 0] - expected[2, 2] > 0.3  # far from isotropic: a real test
+    _, samples = _fixed_t_samples(lat, ori, temp, (0.0, 0.8), 100_000, 10, 3)
+    ss = samples[:, 0, :, None] * samples[:, 0, None, :]
+    got, se = ss.mean(axis=0), _batch_se(ss)
+    assert np.all(np.abs(got - expected) < 4 * se + 1e-4), (got, expected, se)
+
+
+def test_position_moves_sample_boltzmann_against_quadrature():
+    """One cell, orientations frozen: the mean and covariance of its position under
+    exp(-E(r)/T) by quadrature on a 3D grid, against the chain."""
+    lat, cell, ori = _one_free_cell()
+    temp = 0.003
+    r0 = lat.positions[cell]
+    g = np.linspace(-0.17, 0.17, 69)
+    grid = r0 + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1)
+    e = _cell_energy(lat, ori, cell, grid, np.broadcast_to(ori[cell], grid.shape))
+    w = np.exp(-(e - e.min()) / temp)
+    w /= w.sum()
+    mean = np.einsum("ijk,ijka->a", w, grid)
+    d = grid - mean
+    cov = np.einsum("ijk,ijka,ijkb->ab", w, d, d)
+    assert w[0].sum() + w[-1].sum() < 1e-8  # the grid holds the whole distribution
+    samples, _ = _fixed_t_samples(lat, ori, temp, (0.03, 0.0), 100_000, 10, 4)
+    x = samples[:, 0]
+    assert np.all(np.abs(x.mean(axis=0) - mean) < 4 * _batch_se(x) + 1e-5)
+    dx = (x - mean)[:, :, None] * (x - mean)[:, None, :]
+    assert np.all(np.abs(dx.mean(axis=0) - cov) < 4 * _batch_se(dx) + 2e-6 * cov.trace())
+
+
+def test_equipartition_of_the_harmonic_network():
+    """Cells deep inside a network with its rim held (no wall in reach): near the minimum
+    the energy is harmonic in 5 degrees of freedom a cell (3 position, 2 orientation), so
+    <E>(T2) - <E>(T1) = 5 N (T2 - T1) / 2."""
+    lat0 = build_lattice(box(0, 0, 6, 5), np.zeros((0, 3)), 3.0)
+    p = lat0.positions
+    inner = ((p[:, 0] > 1.2) & (p[:, 0] < 4.8) & (p[:, 1] > 1.2) & (p[:, 1] < 3.8)
+             & (p[:, 2] > 0.9) & (p[:, 2] < 2.1))
+    lat = dataclasses.replace(lat0, fixed=~inner)
+    ori = random_orientations(lat.n_cells, np.random.default_rng(1))
+    pos, ori, _ = anneal(lat, lat.positions, ori, 3000, [0])  # to a minimum
+    n = int(inner.sum())
+    means = {}
+    for temp in (1e-6, 3e-6):
+        run = AnnealRun(lat, pos, ori, 1e12, [1], t_init=temp, t_ratio=1.0)
+        run.advance(n * 2000)  # adapt the steps, then fix them
+        run.adapt = False
+        energies = []
+        for _ in range(4000):
+            run.advance(n * 5)
+            energies.append(run.temp_energy[1])
+        means[temp] = np.mean(energies)
+    dof = 2 * (means[3e-6] - means[1e-6]) / 2e-6
+    assert dof == pytest.approx(5 * n, rel=0.15)
+
+
+def test_zero_energy_samples_uniform_orientations_and_positions():
+    """With every spring removed, every move inside the region is accepted: the orientations
+    must be isotropic (<s s^T> = I / 3) and the heights uniform on [0, depth]."""
+    lat0 = build_lattice(box(0, 0, 4, 3), np.zeros((0, 3)), 2.0)
+    lat = dataclasses.replace(lat0, bond_kbar=np.zeros_like(lat0.bond_kbar))
+    ori = np.tile([0.0, 0.0, 1.0], (lat.n_cells, 1))  # far from isotropic at the start
+    pos, o = _fixed_t_samples(lat, ori, 1e-3, (0.3, 1.0), 400, lat.n_cells * 20, 5)
+    pos, o = pos[100:].reshape(-1, 3), o[100:].reshape(-1, 3)
+    assert np.allclose(o.T @ o / len(o), np.eye(3) / 3, atol=0.01)
+    z = pos[:, 2]
+    assert np.all((z >= 0) & (z <= 2.0))
+    assert z.mean() == pytest.approx(1.0, abs=0.02)
+    assert z.var() == pytest.approx(2.0**2 / 12, rel=0.05)

@@ -159,12 +159,15 @@ def simulate(polygon, tethers, depth: float, solver: str | None = DEFAULT_SOLVER
 
 def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | None = DEFAULT_SOLVER,
                      budget: float | None = None, seed: int = 0,
-                     ftol: float | None = None) -> SimResult:
+                     ftol: float | None = None, checkpoint=None, log=None) -> SimResult:
     """Run a solver on `lattice` from a given start state (positions, orientations (N, 3)).
 
     `simulate` starts from the lattice with random orientations; this entry point serves
     studies that start elsewhere (a folded or NaN state in `condor.stability`). The start
     energy (for the runaway check) is that of the given state.
+    checkpoint, log: the anneal's (solvers "anneal" and "hybrid"; `condor.anneal.anneal`): a
+    long anneal saves its state there and resumes from it. `seconds` is then the anneal's
+    process time over every resumption plus this call's minimiser.
     """
     solver = solver or DEFAULT_SOLVER
     _check_solver(solver, budget, ftol)
@@ -192,10 +195,12 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | No
     t0 = time.process_time()
     try:
         pos, ori, info = _solve(lattice, pos0, ori0, solver, used_budget, seed,
-                                DEFAULT_FTOL[solver] if ftol is None else float(ftol))
+                                DEFAULT_FTOL[solver] if ftol is None else float(ftol),
+                                checkpoint, log)
     except ZeroDivisionError:  # numba's 1/|l| on a bond that collapsed to zero length
         pos, ori, info = np.full_like(pos0, np.nan), ori0, {"error": "zero-length bond"}
     seconds = time.process_time() - t0
+    seconds += info.get("anneal_resumed_seconds", 0.0)  # a resumed anneal's earlier part
 
     info["evaluations"] = float(info.get("anneal_evaluations", 0.0)
                                 + info.get("min_evaluations", info.get("min_iterations", 0)))
@@ -229,11 +234,13 @@ def _check_solver(solver: str, budget, ftol) -> None:
         raise ValueError(f"ftol must be a positive force (kappa0 l0) or None, got {ftol!r}")
 
 
-def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ftol: float):
+def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ftol: float,
+           checkpoint=None, log=None):
     """Run one solver from (pos, ori); return (positions, orientations, info)."""
     info = {}
     if solver in ("anneal", "hybrid"):
-        pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2])
+        pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
+                                             checkpoint=checkpoint, log=log)
         info.update(info_a)
     if solver == "lbfgs":
         pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori,
