@@ -32,12 +32,14 @@ MIN_REPLICAS = 4  # fewer ok replicas than this and a mould is left out of the e
 
 
 def anneal_then_relax(mould, depth: float, budget: float, seed: int,
-                      ftol: float = TIGHT_FTOL) -> SimResult:
+                      ftol: float = TIGHT_FTOL, checkpoint=None, log=None) -> SimResult:
     """Anneal `budget` moves per cell, then RELAX_SOLVER to `ftol`; `seconds` and
-    `info["evaluations"]` are the sums of both."""
+    `info["evaluations"]` are the sums of both. checkpoint, log: the anneal's
+    (`condor.anneal.anneal`): a long anneal saves its state there and resumes from it."""
     lattice = build_lattice(mould.polygon, mould.tethers, depth)
     start = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
-    annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", budget, seed)
+    annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", budget, seed,
+                                checkpoint=checkpoint, log=log)
     if annealed.status != "ok":
         return annealed
     result = simulate_lattice(lattice, annealed.positions, annealed.orientations, RELAX_SOLVER,

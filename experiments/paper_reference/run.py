@@ -1,0 +1,82 @@
+"""Run the paper-reference ladder: long anneals of chosen test moulds, resumable, any number
+of workers at once (each claims a run with a lock file), one thread each, niced.
+
+  python experiments/paper_reference/run.py --scene default --moulds 468 302 27 128 553 143 \
+      392 557 --rungs 1e5 1e6 --runs 3 --cache ~/.cache/condor/paper_reference
+
+Finished runs are SimResult files in the cache; a running one keeps its anneal checkpoint
+beside it (`condor.studies.paper_reference`). Kill a worker at any time; start it again to
+resume. The order is rung by rung, run k of every mould before run k + 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+from condor.scenes import get_scene  # noqa: E402
+from condor.simulate import warm_up  # noqa: E402
+from condor.studies.paper_reference import run_path, run_reference  # noqa: E402
+
+
+def claim(path: Path) -> bool:
+    """Take run `path` (a lock file holding this pid); False when a live worker holds it."""
+    lock = path.with_name(path.name + ".lock")
+    for _ in range(2):
+        try:
+            fd = os.open(lock, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+        except FileExistsError:
+            try:
+                os.kill(int(lock.read_text() or 0), 0)
+                return False  # its worker lives
+            except (ProcessLookupError, ValueError):
+                lock.unlink(missing_ok=True)  # a dead worker's: take it over
+                continue
+        os.write(fd, str(os.getpid()).encode())
+        os.close(fd)
+        return True
+    return False
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="default")
+    ap.add_argument("--seed", type=int, default=2026, help="the dataset's global seed")
+    ap.add_argument("--moulds", type=int, nargs="+", required=True)
+    ap.add_argument("--rungs", type=float, nargs="+", required=True, help="moves per cell")
+    ap.add_argument("--runs", type=int, default=3, help="seeds per rung")
+    ap.add_argument("--cache", type=Path,
+                    default=Path.home() / ".cache" / "condor" / "paper_reference")
+    a = ap.parse_args(argv)
+    os.nice(10)
+    scene = get_scene(a.scene)
+    warm_up()
+
+    def log(line):
+        print(f"{time.strftime('%H:%M:%S')} [{os.getpid()}] {line}", flush=True)
+
+    for budget in a.rungs:
+        for k in range(a.runs):
+            for mould in a.moulds:
+                path = run_path(a.cache, scene, a.seed, mould, budget, k)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                if path.exists() or not claim(path):
+                    continue
+                try:
+                    log(f"start {path.name}")
+                    r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
+                    log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
+                        f"{r.seconds:.0f} CPU s")
+                finally:
+                    path.with_name(path.name + ".lock").unlink(missing_ok=True)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
