@@ -6,7 +6,8 @@ of workers at once (each claims a run with a lock file), one thread each, niced.
 
 Finished runs are SimResult files in the cache; a running one keeps its anneal checkpoint
 beside it (`condor.studies.paper_reference`). Kill a worker at any time; start it again to
-resume. The order is rung by rung, run k of every mould before run k + 1.
+resume. The order is rung by rung; within a rung, run k of every mould before run k + 1
+(--order run) or every run of a mould before the next mould (--order mould).
 """
 
 from __future__ import annotations
@@ -51,6 +52,8 @@ def main(argv=None) -> int:
     ap.add_argument("--moulds", type=int, nargs="+", required=True)
     ap.add_argument("--rungs", type=float, nargs="+", required=True, help="moves per cell")
     ap.add_argument("--runs", type=int, default=3, help="seeds per rung")
+    ap.add_argument("--order", choices=("run", "mould"), default="run",
+                    help="within a rung: run k of every mould first, or every run of a mould")
     ap.add_argument("--cache", type=Path,
                     default=Path.home() / ".cache" / "condor" / "paper_reference")
     a = ap.parse_args(argv)
@@ -62,19 +65,20 @@ def main(argv=None) -> int:
         print(f"{time.strftime('%H:%M:%S')} [{os.getpid()}] {line}", flush=True)
 
     for budget in a.rungs:
-        for k in range(a.runs):
-            for mould in a.moulds:
-                path = run_path(a.cache, scene, a.seed, mould, budget, k)
-                path.parent.mkdir(parents=True, exist_ok=True)
-                if path.exists() or not claim(path):
-                    continue
-                try:
-                    log(f"start {path.name}")
-                    r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
-                    log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
-                        f"{r.seconds:.0f} CPU s")
-                finally:
-                    path.with_name(path.name + ".lock").unlink(missing_ok=True)
+        pairs = ([(k, m) for k in range(a.runs) for m in a.moulds] if a.order == "run"
+                 else [(k, m) for m in a.moulds for k in range(a.runs)])
+        for k, mould in pairs:
+            path = run_path(a.cache, scene, a.seed, mould, budget, k)
+            path.parent.mkdir(parents=True, exist_ok=True)
+            if path.exists() or not claim(path):
+                continue
+            try:
+                log(f"start {path.name}")
+                r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
+                log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
+                    f"{r.seconds:.0f} CPU s")
+            finally:
+                path.with_name(path.name + ".lock").unlink(missing_ok=True)
     return 0
 
 

@@ -12,8 +12,13 @@ anneal's checkpoint beside it while it runs: a killed ladder loses at most
 
 from __future__ import annotations
 
+import json
+from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
+from condor.fields import cell_fields, normalise
 from condor.moulds import generate_mould
 from condor.scenes import Scene
 from condor.seeds import study_seed
@@ -64,3 +69,103 @@ def run_reference(cache, scene: Scene, dataset_seed: int, mould_id: int, budget:
     tmp.replace(path)
     checkpoint.unlink(missing_ok=True)
     return result
+
+
+# --- the shipped data product ---------------------------------------------------------------
+# One .npz per (scene, dataset seed, mould) under REFERENCE_DIR, holding every finished run of
+# every rung packed: positions and orientations quantised to int16 (POS_QUANTUM l0, 1/32767),
+# tensions as float16, energies per cell and CPU seconds as float64, and the provenance (the
+# anneal kernel, the code commit, the seeds) as JSON. Fields are recomputed from the states
+# at any grid, so the product scores a solver at whatever resolution its store holds.
+
+REFERENCE_DIR = Path(__file__).resolve().parent.parent / "reference"
+POS_QUANTUM = 2.0e-3  # l0: positions up to 65 l0 fit an int16; 1e-3 l0 RMS is far below sigma
+_ORI_SCALE = 32767.0
+
+
+def reference_file(scene_name: str, dataset_seed: int, mould_id: int, folder=None) -> Path:
+    return Path(folder or REFERENCE_DIR) / f"{scene_name}_s{dataset_seed}_m{mould_id}.npz"
+
+
+def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, runs: int,
+               provenance: dict, folder=None) -> Path | None:
+    """Pack the finished ok runs of `mould_id` at `budgets` (each with its seed) into its
+    reference file; None when none has finished."""
+    arrays, meta = {}, {"scene": scene.to_dict(), "dataset_seed": int(dataset_seed),
+                        "mould": int(mould_id), "runs": [], **provenance}
+    for budget in budgets:
+        for k in range(runs):
+            path = run_path(cache, scene, dataset_seed, mould_id, budget, k)
+            if not path.exists():
+                continue
+            r = SimResult.load(path)
+            key = f"anneal{budget_tag(budget)}_k{k}"
+            meta["runs"].append({"key": key, "budget": float(budget), "run": k,
+                                 "seed": int(r.seed), "status": r.status,
+                                 "energy_per_cell": r.energy_per_cell, "cpu_seconds": r.seconds,
+                                 "evaluations": r.info.get("evaluations"),
+                                 "max_force": r.info.get("max_force")})
+            if r.status != "ok":
+                continue
+            arrays[f"{key}_pos"] = np.round(r.positions / POS_QUANTUM).astype(np.int16)
+            arrays[f"{key}_ori"] = np.round(r.orientations * _ORI_SCALE).astype(np.int16)
+            arrays[f"{key}_tension"] = r.tension.astype(np.float16)
+            arrays["fixed"] = r.fixed
+    if not arrays:
+        return None
+    out = reference_file(scene.name, dataset_seed, mould_id, folder)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, meta=np.array(json.dumps(meta)), **arrays)
+    return out
+
+
+@dataclass(frozen=True)
+class ReferenceRun:
+    budget: float
+    run: int
+    seed: int
+    energy_per_cell: float
+    positions: np.ndarray
+    orientations: np.ndarray
+    tension: np.ndarray
+    fixed: np.ndarray
+
+    def fields(self, scene: Scene) -> np.ndarray:
+        """Normalised fields (8, H, W) at the scene's grid."""
+        return normalise(cell_fields(self.positions, self.orientations, self.tension,
+                                     scene.box, scene.pixels, scene.sigma), len(self.positions))
+
+
+def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: float | None = None,
+                   folder=None) -> list[ReferenceRun]:
+    """The shipped ok runs of a mould at `budget` (None: its highest rung with a run);
+    FileNotFoundError naming the file when the product holds no reference of that mould."""
+    path = reference_file(scene_name, dataset_seed, mould_id, folder)
+    if not path.exists():
+        raise FileNotFoundError(f"no paper reference of {scene_name} mould {mould_id} (seed "
+                                f"{dataset_seed}): {path} does not exist")
+    with np.load(path, allow_pickle=False) as data:
+        meta = json.loads(str(data["meta"]))
+        ok = [r for r in meta["runs"] if r["status"] == "ok"]
+        if budget is None:
+            budget = max(r["budget"] for r in ok)
+        out = []
+        for r in ok:
+            if r["budget"] != float(budget):
+                continue
+            key = r["key"]
+            ori = data[f"{key}_ori"].astype(np.float64) / _ORI_SCALE
+            out.append(ReferenceRun(
+                budget=float(budget), run=int(r["run"]), seed=int(r["seed"]),
+                energy_per_cell=float(r["energy_per_cell"]),
+                positions=data[f"{key}_pos"].astype(np.float64) * POS_QUANTUM,
+                orientations=ori / np.linalg.norm(ori, axis=1, keepdims=True),
+                tension=data[f"{key}_tension"].astype(np.float64), fixed=data["fixed"]))
+    return out
+
+
+def reference_moulds(scene_name: str, dataset_seed: int, folder=None) -> list[int]:
+    """The moulds the product holds a reference of, in increasing id."""
+    prefix = f"{scene_name}_s{dataset_seed}_m"
+    return sorted(int(p.stem[len(prefix):]) for p in Path(folder or REFERENCE_DIR).glob(
+        f"{prefix}*.npz"))

@@ -1,0 +1,164 @@
+"""Candidate fast samplers of the paper's ensemble, scored against the reference anneals.
+
+  python experiments/fast_sampler/run.py --moulds 468 302 143 557 27 128 553 392 \
+      --methods quench window:1000:0.02:1e-4 --reference 1e5 --out fidelity.csv
+
+Methods (each from the lattice with the orientations of `simulate`, seeds = the dataset's
+replica seeds of the mould, then L-BFGS to the dataset's tolerance):
+  quench                   L-BFGS alone (the dataset's solver until now)
+  anneal:B                 the paper's schedule (T_INIT to T_INIT / 1e7) over B moves a cell
+  window:B:Thi:Tlo         an exponential anneal over B moves a cell from Thi to Tlo
+Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
+the paper-reference cache (experiments/paper_reference/run.py).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("NUMBA_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from condor import anneal as anneal_mod  # noqa: E402
+from condor.energy import random_orientations  # noqa: E402
+from condor.fields import cell_fields, normalise  # noqa: E402
+from condor.lattice import build_lattice  # noqa: E402
+from condor.scenes import get_scene  # noqa: E402
+from condor.seeds import replica_seed  # noqa: E402
+from condor.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
+from condor.studies.fidelity import fidelity_row  # noqa: E402
+from condor.studies.paper_reference import budget_tag, mould_of, run_path  # noqa: E402
+
+CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
+REF_CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
+
+
+def run_method(spec: str, scene, mould, seed: int) -> SimResult:
+    lattice = build_lattice(mould.polygon, mould.tethers, scene.depth)
+    ori = random_orientations(lattice.n_cells, np.random.default_rng([seed, 1]))
+    pos = lattice.positions
+    kind, *args = spec.split(":")
+    anneal_info, t0 = {}, time.process_time()
+    if kind in ("anneal", "window"):
+        budget = float(args[0])
+        t_hi, t_lo = ((anneal_mod.T_INIT, anneal_mod.T_INIT / anneal_mod.T_RATIO)
+                      if kind == "anneal" else (float(args[1]), float(args[2])))
+        pos, ori, anneal_info = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
+                                                  t_init=t_hi, t_ratio=t_hi / t_lo)
+    elif kind != "quench":
+        raise ValueError(f"unknown method {spec!r}")
+    anneal_seconds = time.process_time() - t0
+    result = simulate_lattice(lattice, pos, ori, "lbfgs", seed=seed)
+    result.seconds += anneal_seconds
+    result.info["evaluations"] += anneal_info.get("anneal_evaluations", 0.0)
+    result.info.update(anneal_info)
+    return result
+
+
+def cached(cache: Path, spec: str, scene, mould, k: int, seed: int, fresh: bool = False):
+    path = cache / f"{scene.name}_s{mould.seed}" / spec.replace(":", "_") / f"m{mould.mould_id}_r{k}.npz"
+    if path.exists():
+        with np.load(path) as d:
+            return d["fields"], float(d["energy"]), float(d["evaluations"]), str(d["status"])
+    r = run_method(spec, scene, mould, seed)
+    f = normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box, scene.pixels,
+                              scene.sigma), r.n_cells).astype(np.float32)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp.npz")
+    np.savez(tmp, fields=f, energy=r.energy_per_cell, evaluations=r.info["evaluations"],
+             status=r.status, seconds=r.seconds)
+    tmp.replace(path)
+    return f, r.energy_per_cell, r.info["evaluations"], r.status
+
+
+def reference(scene, seed: int, moulds, budget: float, runs: int):
+    fields, energy = [], []
+    for m in moulds:
+        fm, em = [], []
+        for k in range(runs):
+            path = run_path(REF_CACHE, scene, seed, m, budget, k)
+            if not path.exists():
+                continue
+            r = SimResult.load(path)
+            if r.status != "ok":
+                continue
+            fm.append(normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box,
+                                            scene.pixels, scene.sigma), r.n_cells))
+            em.append(r.energy_per_cell)
+        fields.append(fm)
+        energy.append(em)
+    return fields, energy
+
+
+def pad(lists):
+    r = max(len(x) for x in lists)
+    shape = np.shape(lists[0][0])
+    out = np.full((len(lists), r) + shape, np.nan)
+    for i, x in enumerate(lists):
+        out[i, :len(x)] = x
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="default")
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--moulds", type=int, nargs="+", required=True)
+    ap.add_argument("--methods", nargs="+", required=True)
+    ap.add_argument("--seeds", type=int, default=4, help="replicas of each method")
+    ap.add_argument("--reference", type=float, nargs="+", default=[1e5],
+                    help="reference rungs (moves per cell)")
+    ap.add_argument("--reference-runs", type=int, default=3)
+    ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args(argv)
+    scene = get_scene(a.scene)
+    warm_up()
+    moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
+    refs = {}
+    for budget in a.reference:
+        f, e = reference(scene, a.seed, a.moulds, budget, a.reference_runs)
+        keep = [i for i, x in enumerate(f) if len(x) >= 2]
+        refs[budget] = (keep, f, e)
+        print(f"reference anneal {budget_tag(budget)}: {len(keep)} moulds with >= 2 runs",
+              flush=True)
+    rows = []
+    for spec in a.methods:
+        fields, energy, evals = [], [], []
+        for mould in moulds:
+            fm, em, vm = [], [], []
+            for k in range(a.seeds):
+                f, e, v, status = cached(a.cache, spec, scene, mould, k,
+                                         replica_seed(a.seed, mould.mould_id, k))
+                if status == "ok":
+                    fm.append(f)
+                    em.append(e)
+                    vm.append(v)
+            fields.append(fm)
+            energy.append(em)
+            evals.append(vm)
+        for budget, (keep, rf, re) in refs.items():
+            if len(keep) < 2:
+                continue
+            row = fidelity_row(spec, scene.name, f"anneal {budget_tag(budget)}",
+                               pad([fields[i] for i in keep]), pad([rf[i] for i in keep]),
+                               evaluations=pad([evals[i] for i in keep]),
+                               energy=pad([energy[i] for i in keep]),
+                               ref_energy=pad([re[i] for i in keep]))
+            rows.append(row)
+            print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
+                           for k, v in row.items()), flush=True)
+    if a.out:
+        pd.DataFrame(rows).to_csv(a.out, index=False, float_format="%.5g")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,62 @@
+"""Fidelity: how far a solver's ensemble lies from the paper's CONDOR (the reference anneal).
+
+Both ensembles are replicas of the same moulds (M, R, 8, H, W) of normalised fields. The
+distance is the noise-corrected RMS distance between their expected fields
+(`estimators.ensemble_distance`, RMS over moulds, fields and pixels), with a bootstrap
+interval over moulds; the replica noise is one simulation's RMS scatter about the
+reference's expected fields (`estimators.noise_ceiling`), the yardstick of every bar. The
+whole-mould statistics beside it: the cell-averaged orientation (sum of a field Sa2 over the
+sum of P, the mean s_a^2 of the cells) and the energy per cell, as differences of the
+ensembles' means.
+
+`fidelity_row` is one row of `fidelity.csv` (FIDELITY_COLUMNS first).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from condor import estimators as est
+from condor.fields import FIELD_NAMES
+
+FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
+                    "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
+CONVERGED_FRACTION = 0.5  # the bar: distance_hi at most this x the replica noise
+_P, _ORIENT = FIELD_NAMES.index("P"), [FIELD_NAMES.index(f) for f in ("Sx2", "Sy2", "Sz2")]
+
+
+def mean_orientation(fields) -> np.ndarray:
+    """Cell-averaged (sx^2, sy^2, sz^2) of fields (..., 8, H, W): (..., 3)."""
+    f = np.asarray(fields, dtype=np.float64)
+    total = f.sum(axis=(-2, -1))
+    return total[..., _ORIENT] / total[..., _P, None]
+
+
+def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
+                 evaluations=None, energy=None, ref_energy=None) -> dict:
+    """One row: `fields` (M, R, 8, H, W) of the method against `ref_fields` (M, R', 8, H, W)
+    of the reference, both normalised, the same moulds in the same order; `evaluations`
+    (M, R) the method's cost in evaluation-equivalents; `energy`, `ref_energy` (M, R) and
+    (M, R') energies per cell. NaN-padded replicas are allowed (estimators)."""
+    fields = np.asarray(fields, dtype=np.float64)
+    ref_fields = np.asarray(ref_fields, dtype=np.float64)
+    d = est.ensemble_distance(fields, ref_fields)
+    distance, lo, hi = est.bootstrap_interval(d.corrected)
+    row = {"method": method, "scene": scene, "reference": reference,
+           "n_moulds": int(fields.shape[0]),
+           "n_seeds": int(est.replica_counts(fields).min()),
+           "distance": distance, "distance_lo": lo, "distance_hi": hi,
+           "replica_noise": est.root_mean(est.noise_ceiling(ref_fields)),
+           "evaluations_per_mould": float(np.nanmean(evaluations)) if evaluations is not None
+           else float("nan")}
+    diff = (np.nanmean(mean_orientation(fields), axis=1)
+            - np.nanmean(mean_orientation(ref_fields), axis=1))  # (M, 3)
+    for name, values in zip(("sx2", "sy2", "sz2"), diff.T):
+        row[f"{name}_difference"] = float(np.mean(values))
+        row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
+    if energy is not None and ref_energy is not None:
+        ratio = np.nanmean(energy, axis=1) / np.nanmean(ref_energy, axis=1) - 1
+        row["energy_difference_pct"] = float(100 * np.mean(ratio))
+        row["energy_difference_pct_max"] = float(100 * ratio[np.argmax(np.abs(ratio))])
+    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    return row

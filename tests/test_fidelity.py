@@ -1,0 +1,70 @@
+"""The paper reference's runs and data product, and the fidelity of a solver against it."""
+
+import numpy as np
+import pytest
+
+from condor.fields import FIELD_NAMES, cell_fields, normalise
+from condor.scenes import get_scene
+from condor.studies.fidelity import FIDELITY_COLUMNS, fidelity_row, mean_orientation
+from condor.studies.paper_reference import (
+    POS_QUANTUM, load_reference, pack_mould, reference_moulds, reference_seed, run_path,
+    run_reference,
+)
+
+
+def _draw(rng, mean, sigma, replicas):
+    """Replicas (M, R, 8, H, W) of normal noise about `mean` (M, 8, H, W)."""
+    return mean[:, None] + sigma * rng.standard_normal((mean.shape[0], replicas) + mean.shape[1:])
+
+
+def test_fidelity_recovers_a_known_distance_and_noise():
+    rng = np.random.default_rng(0)
+    m, shape = 12, (8, 6, 6)
+    mu = rng.uniform(0.5, 1.5, (m,) + shape)
+    shift = 0.05 * rng.standard_normal((m,) + shape)
+    true = float(np.sqrt(np.mean(shift**2)))
+    a = _draw(rng, mu + shift, 0.2, 40)
+    b = _draw(rng, mu, 0.2, 30)
+    row = fidelity_row("m", "tiny", "ref", a, b, evaluations=np.full((m, 40), 7.0))
+    assert list(row)[:len(FIDELITY_COLUMNS)] == list(FIDELITY_COLUMNS)
+    assert row["distance"] == pytest.approx(true, rel=0.15)
+    assert row["distance_lo"] <= true <= row["distance_hi"]
+    assert row["replica_noise"] == pytest.approx(0.2, rel=0.05)
+    assert row["evaluations_per_mould"] == 7.0 and row["n_seeds"] == 40
+    assert row["converged"] == (row["distance_hi"] <= 0.5 * row["replica_noise"])
+    # the same ensemble against itself (disjoint replicas): no distance
+    same = fidelity_row("m", "tiny", "ref", _draw(rng, mu, 0.2, 20), b)
+    assert same["distance_lo"] == 0.0 and same["converged"]
+
+
+def test_mean_orientation_is_the_cell_average():
+    f = np.zeros((8, 4, 4))
+    f[FIELD_NAMES.index("P")] = 2.0
+    f[FIELD_NAMES.index("Sx2")] = 1.0
+    f[FIELD_NAMES.index("Sz2")] = 0.5
+    assert np.allclose(mean_orientation(f), [0.5, 0.0, 0.25])
+
+
+def test_reference_runs_resume_pack_and_load(tmp_path):
+    scene = get_scene("tiny")
+    cache, folder = tmp_path / "cache", tmp_path / "product"
+    r = run_reference(cache, scene, 2026, 5, 20, 0)
+    assert r.status == "ok" and r.seed == reference_seed(2026, 5, 0)
+    assert run_path(cache, scene, 2026, 5, 20, 0).exists()
+    assert not list(cache.rglob("*.checkpoint.npz"))  # removed once the run is kept
+    again = run_reference(cache, scene, 2026, 5, 20, 0)  # read, not rerun
+    assert np.array_equal(again.positions, r.positions)
+    run_reference(cache, scene, 2026, 5, 20, 1)
+    out = pack_mould(cache, scene, 2026, 5, [20, 40], 2, {"commit": "test"}, folder)
+    assert out.stat().st_size < 64_000
+    assert reference_moulds("tiny", 2026, folder) == [5]
+    runs = load_reference("tiny", 2026, 5, folder=folder)
+    assert [x.run for x in runs] == [0, 1] and runs[0].budget == 20  # 40 never ran
+    assert np.abs(runs[0].positions - r.positions).max() <= POS_QUANTUM / 2 + 1e-12
+    assert runs[0].energy_per_cell == r.energy_per_cell
+    # the fields of the quantised state are the run's to a thousandth
+    f = normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box, scene.pixels,
+                              scene.sigma), r.n_cells)
+    assert np.abs(runs[0].fields(scene) - f).max() < 2e-3 * np.abs(f).max()
+    with pytest.raises(FileNotFoundError, match="no paper reference of tiny mould 6"):
+        load_reference("tiny", 2026, 6, folder=folder)
