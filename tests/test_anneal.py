@@ -307,3 +307,43 @@ def test_zero_energy_samples_uniform_orientations_and_positions():
     assert np.all((z >= 0) & (z <= 2.0))
     assert z.mean() == pytest.approx(1.0, abs=0.02)
     assert z.var() == pytest.approx(2.0**2 / 12, rel=0.05)
+
+
+# --- the relaxed anneal: Metropolis with the positions relaxed between segments ---------------
+
+def test_set_state_keeps_the_running_energy_exact(mould):
+    lat, ori = mould
+    run = AnnealRun(lat, lat.positions, ori, 20, [3, 0])
+    run.advance(run.n_trials // 2)
+    moved = run.pos + 0.01 * np.random.default_rng(0).standard_normal(run.pos.shape)
+    moved[lat.fixed] = lat.positions[lat.fixed]
+    run.set_state(moved, run.ori.copy())
+    run.advance()
+    args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
+    assert run.temp_energy[1] == pytest.approx(total_energy(run.pos, run.ori, *args), rel=1e-9)
+
+
+def test_positions_only_relaxation_turns_no_cell_and_lowers_the_energy(mould):
+    from condor.lbfgs import minimise_lbfgs
+    lat, ori = mould
+    args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
+    pos, o, info = minimise_lbfgs(lat, lat.positions, ori, 50, 0.0, positions_only=True)
+    assert np.abs(o - ori).max() < 1e-12  # renormalised, never turned
+    assert info["min_evaluations"] == 50  # orientation torques remain: it runs to its budget
+    assert total_energy(pos, o, *args) < 0.5 * total_energy(lat.positions, ori, *args)
+    assert lat.region.violation(pos[~lat.fixed]).max() == 0.0
+
+
+def test_relaxed_anneal_is_deterministic_and_counts_its_relaxations(mould):
+    from condor.anneal import relaxed_anneal
+    lat, ori = mould
+    a = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, 10)
+    b = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, 10)
+    assert np.array_equal(a[0], b[0]) and np.array_equal(a[1], b[1])
+    assert a[2]["relax_evaluations"] == 50
+    assert a[2]["anneal_trials"] == 20 * int((~lat.fixed).sum())
+    assert np.allclose(np.linalg.norm(a[1], axis=1), 1.0)
+    assert lat.region.violation(a[0][~lat.fixed]).max() == 0.0
+    args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
+    assert a[2]["anneal_running_energy"] == pytest.approx(total_energy(a[0], a[1], *args),
+                                                          rel=1e-9)

@@ -8,6 +8,8 @@ replica seeds of the mould, then L-BFGS to the dataset's tolerance):
   quench                   L-BFGS alone (the dataset's solver until now)
   anneal:B                 the paper's schedule (T_INIT to T_INIT / 1e7) over B moves a cell
   window:B:Thi:Tlo         an exponential anneal over B moves a cell from Thi to Tlo
+  relax:Thi:Tlo:S:W:R      condor.anneal.relaxed_anneal: S segments of W sweeps from Thi to
+                           Tlo, each followed by R evaluations of L-BFGS on the positions
 Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
 the paper-reference cache (experiments/paper_reference/run.py).
 """
@@ -52,6 +54,11 @@ def run_method(spec: str, scene, mould, seed: int) -> SimResult:
                       if kind == "anneal" else (float(args[1]), float(args[2])))
         pos, ori, anneal_info = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
                                                   t_init=t_hi, t_ratio=t_hi / t_lo)
+    elif kind == "relax":
+        t_hi, t_lo, segments, sweeps, relax = (float(args[0]), float(args[1]), int(args[2]),
+                                               int(args[3]), int(args[4]))
+        pos, ori, anneal_info = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2], t_hi,
+                                                          t_lo, segments, sweeps, relax)
     elif kind != "quench":
         raise ValueError(f"unknown method {spec!r}")
     anneal_seconds = time.process_time() - t0

@@ -342,6 +342,17 @@ class AnnealRun:
         self.trial = stop
         self.cpu_seconds += time.process_time() - t0
 
+    def set_state(self, positions, orientations) -> None:
+        """Take new positions and orientations (e.g. after a relaxation of the positions),
+        with their bond energies and the running energy recomputed."""
+        lat = self.lattice
+        self.pos[...] = positions
+        self.ori[...] = orientations
+        bond_e = bond_energies(self.pos, self.ori, lat.bond_i, lat.bond_j, lat.bond_kbar,
+                               lat.bond_rest, self.delta)
+        self.slot_e[...] = bond_e[lat.cell_bonds]
+        self.temp_energy[1] = _kernel_sum(bond_e)
+
     def save(self, path) -> None:
         """Write the whole state to `path` atomically."""
         path = Path(path)
@@ -440,3 +451,31 @@ def anneal(
         if not checkpoint.exists():
             run.save(checkpoint)
     return run.pos, run.ori, run.info()
+
+
+def relaxed_anneal(lattice, positions, orientations, seed_seq, t_hi: float, t_lo: float,
+                   segments: int, sweeps: int, relax_evaluations: int, delta: float = DELTA
+                   ) -> tuple[np.ndarray, np.ndarray, dict]:
+    """An anneal from t_hi to t_lo (exponential, `segments` x `sweeps` moves a cell) whose
+    positions are relaxed by L-BFGS (positions only, `relax_evaluations` evaluations) after
+    every segment: Metropolis samples the orientations and the local position fluctuations,
+    the relaxation carries the long-wavelength elastic modes that single-cell moves relax
+    only over ~L^2 sweeps. Returns (positions, orientations, info) with info["anneal_*"] as
+    `anneal` and relax_evaluations spent."""
+    from condor.lbfgs import minimise_lbfgs  # the minimiser's floor is beside this one
+
+    run = AnnealRun(lattice, positions, orientations, segments * sweeps, seed_seq, t_hi,
+                    t_hi / t_lo, delta)
+    n_mobile = len(run.mobile)
+    relax = 0
+    for _ in range(segments):
+        run.advance(sweeps * n_mobile)
+        if relax_evaluations > 0:
+            pos, ori, info = minimise_lbfgs(lattice, run.pos, run.ori, relax_evaluations, 0.0,
+                                            delta=delta, positions_only=True)
+            relax += info["min_evaluations"]
+            run.set_state(pos, ori)
+    info = run.info()
+    info["relax_evaluations"] = int(relax)
+    info["anneal_evaluations"] += relax
+    return run.pos, run.ori, info

@@ -285,12 +285,15 @@ def stiffness_diagonal(lattice, delta: float = DELTA) -> np.ndarray:
 def minimise_lbfgs(lattice, positions, orientations, max_iter: int, ftol: float,
                    memory: int = MEMORY, precondition: bool = True, delta: float = DELTA,
                    max_disp: float = MAX_DISP, max_turn: float = MAX_TURN,
-                   trace: np.ndarray | None = None):
+                   trace: np.ndarray | None = None, positions_only: bool = False):
     """Minimise copies of (positions, orientations) with L-BFGS; return (pos, ori, info).
 
     The start is first projected into the region (info `start_projection`, l0).
     max_iter: energy+gradient evaluations; ftol: largest residual force, kappa0 l0.
     trace: optional float64 (K, 2) filled with (energy, max residual force) per evaluation.
+    positions_only: the orientations stay as they are (their part of the preconditioner is 0,
+    so no search direction turns them); the residual force still counts their torques, so
+    such a run stops at max_iter.
     info: iterations, evaluations, max_force, converged, stalled."""
     if max_iter < 1:
         raise ValueError(f"max_iter must be >= 1, got {max_iter}")
@@ -308,6 +311,8 @@ def minimise_lbfgs(lattice, positions, orientations, max_iter: int, ftol: float,
         inv_diag[:, :3] = 1.0 / diag[:, :1]
         inv_diag[:, 3:] = 1.0 / diag[:, 1:]
         inv_diag /= inv_diag.mean()
+    if positions_only:
+        inv_diag[:, 3:] = 0.0
     e, fmax, evals, iters, stalled = lbfgs_kernel(
         pos, ori, mobile, lattice.bond_i, lattice.bond_j, lattice.bond_kbar, lattice.bond_rest,
         delta, r.phi, r.phi_x0, r.phi_y0, r.phi_h, r.posts, r.depth, int(max_iter), float(ftol),
