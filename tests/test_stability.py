@@ -48,8 +48,10 @@ def test_schedule_far_too_fast_is_valid_but_unrelaxed(table):
     assert rows.loc["minimise", "energy_per_cell"] > 5 * converged
     assert rows.loc["lbfgs", "energy_per_cell"] > 1.5 * converged  # ten evaluations: 1.8x
     assert "unrelaxed" in rows.loc["anneal", "what"]
-    # the hybrid's FIRE stage still converges after a one-move anneal
+    # the hybrid's FIRE stage and the relaxed anneal's L-BFGS still converge after a short
+    # anneal
     assert rows.loc["hybrid", "energy_per_cell"] == pytest.approx(converged, rel=0.05)
+    assert rows.loc["relaxed_anneal", "energy_per_cell"] == pytest.approx(converged, rel=0.05)
 
 
 def test_mould_without_tethers_contracts_freely():
@@ -73,7 +75,7 @@ def test_mould_without_tethers_contracts_freely():
 def test_hard_geometry_stays_inside_and_unfolded(name):
     case = CASES[name]
     lat = build_lattice(case.polygon, case.tethers, DEPTH)
-    for solver in ("minimise", "hybrid", "lbfgs"):
+    for solver in ("minimise", "hybrid", "lbfgs", "relaxed_anneal"):
         r = _result(name, solver)
         assert r.status == "ok", r.status
         assert _inside(r, case)

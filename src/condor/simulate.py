@@ -12,6 +12,11 @@ and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
                 energy+gradient evaluations.
   * "hybrid":   a short anneal (budget = its moves per cell) that lets orientations find
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
+  * "relaxed_anneal": `condor.anneal.relaxed_anneal` over the temperatures where the
+                orientation order forms (RELAXED_WINDOW), its positions relaxed by L-BFGS
+                after every RELAXED_SWEEPS sweeps (RELAXED_RELAX evaluations), then L-BFGS to
+                ftol; budget = its moves per cell. It samples the paper's annealed ensemble
+                (docs/model.md, "A fast sampler of the paper's ensemble").
 
 `simulate_lattice` runs a solver from a given start state (used by condor.stability and
 condor.studies).
@@ -53,12 +58,16 @@ from condor.energy import DELTA, cell_tension, lattice_energy, random_orientatio
 from condor.lattice import Lattice, build_lattice, signed_volumes
 from condor.walls import residual_forces
 
-SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid")
+SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid", "relaxed_anneal")
 DEFAULT_SOLVER = "lbfgs"
 DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
-                  "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0}
+                  "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0,
+                  "relaxed_anneal": 300.0}
 DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
-                "hybrid": minimise_mod.FTOL}
+                "hybrid": minimise_mod.FTOL, "relaxed_anneal": lbfgs_mod.FTOL}
+RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
+RELAXED_SWEEPS = 10  # sweeps between two relaxations of the positions
+RELAXED_RELAX = 20  # L-BFGS evaluations of each relaxation
 ESCAPE_TOL = 0.25  # l0
 FOLD_FRACTION = 0.01  # of tetrahedra
 COLLAPSE_LENGTH = 0.35  # l0, nearest-neighbour bonds
@@ -242,6 +251,14 @@ def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ft
         pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
                                              checkpoint=checkpoint, log=log)
         info.update(info_a)
+    if solver == "relaxed_anneal":
+        segments = max(1, int(round(budget / RELAXED_SWEEPS)))
+        pos, ori, info_a = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2],
+                                                     *RELAXED_WINDOW, segments, RELAXED_SWEEPS,
+                                                     RELAXED_RELAX)
+        info.update(info_a)
+        pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori, lbfgs_mod.MAX_ITER, ftol)
+        info.update(info_m)
     if solver == "lbfgs":
         pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori,
                                                     max_iter=max(int(budget), 1), ftol=ftol)

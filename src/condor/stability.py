@@ -87,7 +87,8 @@ class Case:
 
 CASES: dict[str, Case] = {c.name: c for c in (
     Case("schedule far too fast", SQUARE, TWO_POSTS,
-         budgets={"anneal": 1.0, "minimise": 10.0, "hybrid": 1.0, "lbfgs": 10.0}, compare_converged=True),
+         budgets={"anneal": 1.0, "minimise": 10.0, "hybrid": 1.0, "lbfgs": 10.0,
+                  "relaxed_anneal": 1.0}, compare_converged=True),
     Case("no tethers", SQUARE, np.zeros((0, 3)), compare_converged=True),
     Case("thin neck (0.6 l0)", NECK, NECK_POSTS),
     Case("tether touching the wall", SQUARE, np.array([[1.0, 3.0, 1.0], [7.5, 3.0, 1.0]])),
