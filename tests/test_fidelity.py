@@ -68,3 +68,23 @@ def test_reference_runs_resume_pack_and_load(tmp_path):
     assert np.abs(runs[0].fields(scene) - f).max() < 2e-3 * np.abs(f).max()
     with pytest.raises(FileNotFoundError, match="no paper reference of tiny mould 6"):
         load_reference("tiny", 2026, 6, folder=folder)
+
+
+def test_fidelity_table_scores_solvers_against_the_shipped_reference(tmp_path):
+    from condor.studies.fidelity import fidelity_table
+    scene = get_scene("tiny")
+    cache, folder = tmp_path / "cache", tmp_path / "product"
+    for m in (5, 27):
+        for k in range(2):
+            run_reference(cache, scene, 2026, m, 20, k)
+        pack_mould(cache, scene, 2026, m, [20], 2, {}, folder)
+    table = fidelity_table(scene, 2026, [("lbfgs", None), ("anneal", 20.0)], 2, folder=folder)
+    assert list(table["method"]) == ["lbfgs", "anneal"]
+    assert list(table.columns[:len(FIDELITY_COLUMNS)]) == list(FIDELITY_COLUMNS)
+    assert set(table["n_moulds"]) == {2} and set(table["reference"]) == {"anneal 2e1"}
+    assert (table["evaluations_per_mould"] > 0).all() and (table["replica_noise"] > 0).all()
+    assert table.loc[0, "moulds"] == "5 27"
+    # a scene that is not the preset the references were run in has none
+    other = fidelity_table(get_scene("tiny", depth=3.0), 2026, [("lbfgs", None)], 2,
+                           folder=folder)
+    assert other.empty and list(other.columns) == list(FIDELITY_COLUMNS)

@@ -154,6 +154,7 @@ def fake_inputs(tmp_path):
     pd.DataFrame({"case": ["no tethers"], "solver": ["anneal"], "status": ["ok"],
                   "as_expected": [True], "what": ["valid"]}).to_csv(d / "stab.csv", index=False)
     pd.DataFrame({"method": ["unet_eval"], "mae_P": [0.1]}).to_csv(d / "ssum.csv", index=False)
+    fidelity_table(relaxed=(0.04, 0.0, 0.08)).to_csv(d / "fidelity.csv", index=False)
     pd.DataFrame({"epoch": [1, 2], "l1": [0.5, 0.4]}).to_csv(d / "unet_history.csv", index=False)
     pd.DataFrame({"n_train": [50, 100], "epochs": [20, 10], "field_rms": [0.4, 0.3],
                   "field_rms_lo": [0.35, 0.25], "field_rms_hi": [0.45, 0.35],
@@ -188,6 +189,7 @@ def fake_inputs(tmp_path):
               "calibration_test": d / "calibration_test.csv",
               "convergence": d / "conv.csv", "convergence_chart": d / "conv.png",
               "stability": d / "stab.csv", "surrogate_summary": d / "ssum.csv",
+              "fidelity": d / "fidelity.csv",
               "evaluations": [figures], "histories": [d / "unet_history.csv"],
               "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
               "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
@@ -212,6 +214,7 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert "src=\"http" not in page and "href=\"http" not in page  # self-contained
     summary = page[page.index('id="summary"'):page.index('id="accuracy"')]
     assert "3 of 4 simulations finished ok" in summary and "folded" in summary
+    assert summary.index("Fidelity to the paper") < summary.index("3 of 4 simulations")
     assert "closer to the average organisation than one simulation" in summary
     assert "On every test mould: One simulation" in summary and "24 test moulds" in summary
     assert "unet (0.07 [0.065, 0.075]" in summary  # the field error on every test mould
@@ -262,6 +265,29 @@ def test_statistics_verdict_names_biases_and_small_samples():
     orientation = report.statistics_verdict(statistics_table(r=0.9, stats=("mean_Sy2",)), "unet")
     assert "The r is below both 0.98 and its ceiling - 0.01 on mean Sy2" in orientation
     assert "more training moulds" in orientation
+
+
+def fidelity_table(relaxed=(0.04, 0.0, 0.08), quench=(0.23, 0.04, 0.37)):
+    rows = [{"method": m, "scene": "default", "reference": "anneal 1e6", "n_moulds": 8,
+             "n_seeds": 4, "distance": d, "distance_lo": lo, "distance_hi": hi,
+             "replica_noise": 0.22, "evaluations_per_mould": e}
+            for m, (d, lo, hi), e in (("relaxed_anneal", relaxed, 2351.0),
+                                      ("lbfgs", quench, 1193.0))]
+    return pd.DataFrame(rows)
+
+
+def test_fidelity_verdict_says_how_far_each_solver_is_from_the_paper():
+    text = report.fidelity_verdict(fidelity_table())
+    assert text.startswith("Fidelity to the paper's CONDOR (anneal 1e6, 8 test moulds x 4 seeds)")
+    assert ("the dataset's solver (relaxed_anneal) lands 0.04 [0, 0.08] from its expected "
+            "fields (upper bound 0.36 x one simulation's scatter 0.220; not resolved from it) "
+            "at 2,351 evaluations") in text
+    assert "lbfgs lands 0.23 [0.04, 0.37]" in text and "1.68 x" in text
+    assert "resolved from it) at 1,193" in text
+    assert "not resolved" in report.fidelity_verdict(fidelity_table()).split(";")[1]
+    far = report.fidelity_verdict(fidelity_table(relaxed=(0.2, 0.1, 0.3)))
+    assert "upper bound 1.36 x" in far and "(relaxed_anneal) lands 0.2 [0.1, 0.3]" in far
+    assert "not measured" in report.fidelity_verdict(fidelity_table().iloc[:0])
 
 
 def test_ladder_verdict():

@@ -173,6 +173,7 @@ REPORT_INPUTS = {
     "convergence": "scene convergence study (CSV)",
     "convergence_chart": "scene convergence chart (PNG)",
     "stability": "stability cases with every solver (CSV)",
+    "fidelity": "the dataset's solver against the paper's CONDOR, the reference anneals (CSV)",
     "surrogate_summary": "the paper's measures per variant and baseline (CSV)",
     "evaluations": "evaluation folders, one per variant and one for the baselines",
     "histories": "training history per variant (CSV)",
@@ -315,6 +316,27 @@ def ladder_verdict(ladder: pd.DataFrame) -> str:
             "solver's expected fields carry that bias against the slower anneal. " + PAPER_LADDER)
 
 
+def fidelity_verdict(fidelity: pd.DataFrame) -> str:
+    """One sentence: how far the dataset's solver (first row) lies from the paper's CONDOR,
+    and the L-BFGS quench beside it."""
+    if fidelity.empty:
+        return ("Fidelity to the paper's CONDOR: not measured, the product holds no reference "
+                "anneals of this scene and seed (src/condor/reference).")
+    words = []
+    for i, row in enumerate(fidelity.itertuples()):
+        ratio = row.distance_hi / row.replica_noise
+        state = ("not resolved from it" if row.distance_hi <= 0.5 * row.replica_noise
+                 else "resolved from it")
+        name = f"the dataset's solver ({row.method})" if i == 0 else row.method
+        words.append(f"{name} lands {_interval(row.distance, row.distance_lo, row.distance_hi)}"
+                     f" from its expected fields (upper bound {ratio:.2f} x one simulation's "
+                     f"scatter {row.replica_noise:.3f}; {state}) at "
+                     f"{row.evaluations_per_mould:,.0f} evaluations a mould")
+    first = fidelity.iloc[0]
+    return (f"Fidelity to the paper's CONDOR ({first['reference']}, {int(first['n_moulds'])} "
+            f"test moulds x {int(first['n_seeds'])} seeds): " + "; ".join(words) + ".")
+
+
 def _dataset_line(config, summary: pd.DataFrame) -> str:
     ok = summary["state"].eq("ok")
     moulds = summary["mould"].nunique() if "mould" in summary else len(summary)
@@ -343,7 +365,8 @@ def _summary_section(config, inp) -> Section:
     accuracy = _csv(inp, "accuracy")
     statistics = _csv(inp, "statistics")
     first = config.surrogate["variants"][0] if config.surrogate["variants"] else None
-    blocks = [paragraph(_dataset_line(config, summary)), *_failures(summary),
+    blocks = [verdict(fidelity_verdict(_csv(inp, "fidelity"))),
+              paragraph(_dataset_line(config, summary)), *_failures(summary),
               figure(inp["accuracy_chart"], "Cost per mould against the error of every method "
                      "against the expected fields of the same test moulds (the mean of their "
                      "replicas, with the finite-replica noise removed); bars: 95% bootstrap "
@@ -443,6 +466,12 @@ def _simulator_section(inp) -> Section:
               "expected fields (RMS, noise removed) and the scatter of one simulation within the "
               "rung.", digits=3),
         verdict(ladder_verdict(ladder)),
+        table(_csv(inp, "fidelity"), "Fidelity to the paper's CONDOR: each solver's ensemble "
+              "(the dataset's replica seeds) against the reference anneals the product ships, "
+              "distance between expected fields (RMS over the normalised fields, noise removed, "
+              "95% interval over moulds), one reference simulation's scatter, cost in "
+              "evaluation-equivalents a mould, and the differences of the cell-averaged "
+              "orientations and of the energy per cell (%).", digits=3),
         figure(inp["convergence_chart"], "Systematic change of the fields (noise removed) "
                "against depth and box size; dashed: half the scatter of one simulation."),
         table(convergence[conv_cols], "Scene convergence: a reduction is justified when its "

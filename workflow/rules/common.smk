@@ -63,6 +63,7 @@ def report_inputs(wildcards):
         "convergence": rules.convergence.output.table,
         "convergence_chart": rules.convergence.output.chart,
         "stability": rules.stability.output[0],
+        "fidelity": rules.fidelity.output[0],
         "surrogate_summary": rules.surrogate_summary.output[0],
         "evaluations": [*expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
                         f"{EVALUATION}/baselines/figures"],
@@ -83,11 +84,15 @@ def moulds_of_batch(mould):
 
 
 # --- repairs: a flag file claims a batch is done but the store lost its samples ---------------
-# The main process compares the flags with the store (a listing, no decompression). Each stale
+# The main process compares the flags with the store (condor.folder.store_gaps: chunk files
+# listed and their headers read; only the flags and the layout decompressed). Each stale
 # job gets a marker input, touched now, so it is newer than the job's flag and Snakemake
 # reruns exactly those jobs (and, by mtime, what follows them); `snakemake -n` shows them.
 # A marker is an input only while its job is stale; results/.repair keeps them as a record.
-REPAIR = {"init_store": False, "moulds": set(), "simulate": set(), "fields": set()}
+# Lost inputs are written again by the batch's fields job, from the moulds JSON its
+# simulations used (rerunning the moulds job would rerun the simulations, whose timings
+# differ); the layout and the expected fields by the dataset job.
+REPAIR = {"init_store": False, "simulate": set(), "fields": set(), "dataset": False}
 if workflow.is_main_process and Path(STORE_MANIFEST).exists():
     if not Path(STORE).exists():
         REPAIR["init_store"] = True
@@ -95,8 +100,6 @@ if workflow.is_main_process and Path(STORE_MANIFEST).exists():
         GAPS = store_gaps(STORE)
         for _b, _ids in enumerate(BATCHES):
             _bid, _ids = f"{_b:04d}", set(_ids)
-            if Path(f"{R}/moulds/batch_{_bid}.json").exists() and GAPS["inputs"] & _ids:
-                REPAIR["moulds"].add(_bid)
             fields_done = Path(f"{R}/fields/batch_{_bid}.json").exists()
             if fields_done and GAPS["fields"] & _ids:
                 REPAIR["fields"].add(_bid)
@@ -105,6 +108,7 @@ if workflow.is_main_process and Path(STORE_MANIFEST).exists():
                 not (sims / f"{m:06d}_{r:02d}.npz").exists() for m in _ids for r in range(REPLICAS[m]))
             if lost and (not fields_done or _bid in REPAIR["fields"]):
                 REPAIR["simulate"].add(_bid)
+        REPAIR["dataset"] = bool(GAPS["dataset"]) and Path(f"{R}/dataset_summary.csv").exists()
 
 
 def repair_marker(stage, batch="all"):

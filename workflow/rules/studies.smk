@@ -126,3 +126,20 @@ rule stability:
         mem_mb=1000,
     script:
         "../scripts/stability.py"
+
+
+rule fidelity:
+    conda:
+        CONDA_ENV
+    input:
+        STORE_MANIFEST,  # the numba cache is warm before any simulation job
+    output:
+        report(f"{STUDIES}/fidelity.csv", caption="../report/fidelity.rst", category="Simulator"),
+    log:
+        f"{R}/logs/studies/fidelity.log",
+    threads: 1
+    resources:
+        runtime=60,
+        mem_mb=2000,
+    script:
+        "../scripts/fidelity.py"

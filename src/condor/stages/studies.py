@@ -7,7 +7,9 @@
   every test mould);
 - `ladder`: the anneal ladder against the dataset solver's replicas;
 - `convergence`: depth and box-size reductions against seed noise;
-- `stability`: the stability cases with every solver.
+- `stability`: the stability cases with every solver;
+- `fidelity`: the dataset's solver (and the L-BFGS quench) against the paper's CONDOR, the
+  reference anneals the product ships (condor.studies.paper_reference).
 """
 
 from __future__ import annotations
@@ -26,6 +28,7 @@ from condor.stages.dataset import load_moulds
 from condor.store import open_store
 from condor.studies import accuracy as accuracy_study
 from condor.studies.convergence import convergence as convergence_study
+from condor.studies.fidelity import fidelity_table
 from condor.studies.ladder import ladder as ladder_study
 from condor.studies.reference import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
@@ -220,4 +223,19 @@ def stability(config: Config, out_csv) -> pd.DataFrame:
     table = run_cases(solvers=tuple(config.report["stability_solvers"]))
     table.to_csv(out_csv, index=False)
     log.info("\n%s", table.drop(columns=["what"]).to_string(index=False))
+    return table
+
+
+def fidelity(config: Config, out_csv) -> pd.DataFrame:
+    """The dataset's solver, and the L-BFGS quench beside it, against the paper reference of
+    the config's scene and seed (`simulation.replicas.test` seeds a mould); the columns only
+    when the product holds no reference of them."""
+    solver, budget = config.solver()
+    solvers = [(solver, budget)] + ([("lbfgs", None)] if solver != "lbfgs" else [])
+    table = fidelity_table(config.scene, config.seed, solvers,
+                           int(config.simulation["replicas"]["test"]), log=log.info)
+    table.to_csv(out_csv, index=False)
+    if table.empty:
+        log.info("fidelity: no paper reference of scene %s, seed %s", config.scene.name,
+                 config.seed)
     return table

@@ -15,9 +15,10 @@ ensembles' means.
 from __future__ import annotations
 
 import numpy as np
+import pandas as pd
 
 from condor import estimators as est
-from condor.fields import FIELD_NAMES
+from condor.fields import FIELD_NAMES, cell_fields, normalise
 
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
@@ -60,3 +61,70 @@ def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
         row["energy_difference_pct_max"] = float(100 * ratio[np.argmax(np.abs(ratio))])
     row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
     return row
+
+
+def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, replicas: int,
+                    log=None):
+    """`replicas` simulations of each mould with `solver` (the dataset's replica seeds, so the
+    dataset's own solver reproduces its store): normalised fields (M, R, 8, H, W), energies
+    per cell and evaluation-equivalents (M, R); a failed run is NaN."""
+    from condor.seeds import replica_seed
+    from condor.simulate import simulate
+    from condor.studies.paper_reference import mould_of
+
+    fields = np.full((len(mould_ids), replicas, 8, scene.pixels, scene.pixels), np.nan)
+    energy = np.full((len(mould_ids), replicas), np.nan)
+    evaluations = np.full((len(mould_ids), replicas), np.nan)
+    for i, m in enumerate(mould_ids):
+        mould = mould_of(scene, dataset_seed, m)
+        for k in range(replicas):
+            r = simulate(mould.polygon, mould.tethers, scene.depth, solver, budget,
+                         seed=replica_seed(dataset_seed, m, k))
+            if r.status != "ok":
+                continue
+            fields[i, k] = normalise(cell_fields(r.positions, r.orientations, r.tension,
+                                                 scene.box, scene.pixels, scene.sigma),
+                                     r.n_cells)
+            energy[i, k] = r.energy_per_cell
+            evaluations[i, k] = r.info["evaluations"]
+        if log is not None:
+            log(f"fidelity: {solver} on mould {m}: E/cell {np.nanmean(energy[i]):.6f}, "
+                f"{np.nanmean(evaluations[i]):.0f} evaluations")
+    return fields, energy, evaluations
+
+
+def fidelity_table(scene, dataset_seed: int, solvers, replicas: int, folder=None,
+                   log=None) -> pd.DataFrame:
+    """Each (solver, budget) of `solvers` against the paper reference the product ships for
+    this scene and seed (`paper_reference.load_reference`, its top rung): FIDELITY_COLUMNS and
+    the differences of `fidelity_row`. Empty (the columns only) when no reference exists."""
+    from condor.scenes import PRESETS
+    from condor.studies.paper_reference import budget_tag, load_reference, reference_moulds
+
+    if scene.name not in PRESETS or scene != PRESETS[scene.name]:
+        return pd.DataFrame(columns=list(FIDELITY_COLUMNS))  # references are of the presets
+    moulds = reference_moulds(scene.name, dataset_seed, folder)
+    refs = [load_reference(scene.name, dataset_seed, m, folder=folder) for m in moulds]
+    keep = [i for i, runs in enumerate(refs) if len(runs) >= 2]
+    if not keep:
+        return pd.DataFrame(columns=list(FIDELITY_COLUMNS))
+    moulds = [moulds[i] for i in keep]
+    refs = [refs[i] for i in keep]
+    width = max(len(runs) for runs in refs)
+    ref_fields = np.full((len(moulds), width, 8, scene.pixels, scene.pixels), np.nan)
+    ref_energy = np.full((len(moulds), width), np.nan)
+    for i, runs in enumerate(refs):
+        for k, run in enumerate(runs):
+            ref_fields[i, k] = run.fields(scene)
+            ref_energy[i, k] = run.energy_per_cell
+    rungs = {run.budget for runs in refs for run in runs}
+    reference = "anneal " + "/".join(budget_tag(b) for b in sorted(rungs))
+    rows = []
+    for solver, budget in solvers:
+        fields, energy, evaluations = solver_ensemble(scene, dataset_seed, moulds, solver,
+                                                      budget, replicas, log)
+        row = fidelity_row(solver, scene.name, reference, fields, ref_fields, evaluations,
+                           energy, ref_energy)
+        row["moulds"] = " ".join(map(str, moulds))
+        rows.append(row)
+    return pd.DataFrame(rows)

@@ -1,0 +1,102 @@
+"""The paper-reference ladder's table and the shipped data product, from the run cache.
+
+  python experiments/paper_reference/tables.py --moulds 468 302 143 557 27 128 553 392 \
+      --rungs 1e5 1e6 [--pack]
+
+Writes experiments/paper_reference/ladder.csv: for each rung below the top, its distance to
+the next rung up (noise-corrected, RMS over the 8 normalised fields, bootstrap over moulds),
+the replica noise of the upper rung, the cell-averaged orientations and energies, and
+whether the pair is unresolved by the bar (upper 95% bound <= 0.5 x the noise). Only moulds
+with >= 2 finished runs at both rungs count. --pack writes src/condor/reference/ (one .npz
+per mould, every finished run of every rung, with the commit and the kernel as provenance).
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from condor.anneal import KERNEL
+from condor.fields import cell_fields, normalise
+from condor.scenes import get_scene
+from condor.simulate import SimResult
+from condor.studies.fidelity import fidelity_row
+from condor.studies.paper_reference import budget_tag, pack_mould, run_path
+
+HERE = Path(__file__).resolve().parent
+CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
+
+
+def rung(scene, seed, mould, budget, runs):
+    fields, energy = [], []
+    for k in range(runs):
+        path = run_path(CACHE, scene, seed, mould, budget, k)
+        if path.exists():
+            r = SimResult.load(path)
+            if r.status == "ok":
+                fields.append(normalise(cell_fields(r.positions, r.orientations, r.tension,
+                                                    scene.box, scene.pixels, scene.sigma),
+                                        r.n_cells))
+                energy.append(r.energy_per_cell)
+    return fields, energy
+
+
+def pad(lists):
+    r = max(len(x) for x in lists)
+    out = np.full((len(lists), r) + np.shape(lists[0][0]), np.nan)
+    for i, x in enumerate(lists):
+        out[i, :len(x)] = x
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="default")
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--moulds", type=int, nargs="+", required=True)
+    ap.add_argument("--rungs", type=float, nargs="+", required=True)
+    ap.add_argument("--runs", type=int, default=3)
+    ap.add_argument("--pack", action="store_true")
+    a = ap.parse_args(argv)
+    scene = get_scene(a.scene)
+    rows = []
+    rungs = sorted(a.rungs)
+    data = {b: [rung(scene, a.seed, m, b, a.runs) for m in a.moulds] for b in rungs}
+    for lower, upper in zip(rungs, rungs[1:]):
+        keep = [i for i in range(len(a.moulds))
+                if len(data[lower][i][0]) >= 2 and len(data[upper][i][0]) >= 2]
+        if not keep:
+            print(f"anneal {budget_tag(lower)} / {budget_tag(upper)}: no mould has 2 runs of both")
+            continue
+        row = fidelity_row(f"anneal {budget_tag(lower)}", scene.name,
+                           f"anneal {budget_tag(upper)}",
+                           pad([data[lower][i][0] for i in keep]),
+                           pad([data[upper][i][0] for i in keep]),
+                           energy=pad([data[lower][i][1] for i in keep]),
+                           ref_energy=pad([data[upper][i][1] for i in keep]))
+        row["moulds"] = " ".join(str(a.moulds[i]) for i in keep)
+        rows.append(row)
+        print(row)
+    if rows:
+        out = HERE / f"ladder_{scene.name}.csv"
+        pd.DataFrame(rows).to_csv(out, index=False, float_format="%.5g")
+        print(f"wrote {out}")
+    if a.pack:
+        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                                cwd=HERE).stdout.strip()
+        for m in a.moulds:
+            out = pack_mould(CACHE, scene, a.seed, m, rungs, a.runs,
+                             {"kernel": KERNEL, "commit": commit,
+                              "made_by": "experiments/paper_reference/run.py"})
+            if out is not None:
+                print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
