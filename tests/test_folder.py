@@ -12,7 +12,7 @@ import pytest
 
 from condor.config import Config
 from condor.folder import FolderError, RunLock, check_folder, store_gaps, store_path
-from condor.store import create_store, sample_index, write_inputs, write_sample
+from condor.store import create_store, sample_index, write_expected, write_inputs, write_sample
 
 BASE = {"scene": "tiny", "seed": 1, "n_moulds": 6, "split": {"test": 2},
         "simulation": {"replicas": {"test": 2}}}
@@ -74,7 +74,8 @@ def test_a_reused_pid_does_not_hold_the_lock(tmp_path):
     lock.release()
 
 
-def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
+def simulated_store(tmp_path):
+    """The config's store with every sample simulated (the expected fields not derived)."""
     config = config_in(tmp_path)
     store = store_path(config.results)
     create_store(store, config.store_spec())
@@ -87,10 +88,40 @@ def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
         for r in range(replicas[mould]):
             write_sample(store, sample_index(replicas, mould, r),
                          np.ones((8, 32, 32), np.float32), sim, "ok")
-    assert store_gaps(store) == {"inputs": set(), "fields": set()}
+    return config, store
+
+
+def test_store_gaps_name_the_moulds_that_lost_samples(tmp_path):
+    config, store = simulated_store(tmp_path)
+    replicas = config.replicas()
+    # the expected fields are not derived yet: the dataset step writes them
+    assert store_gaps(store) == {"inputs": set(), "fields": set(), "dataset": {"n_replicas_ok"}}
+    write_expected(store)
+    assert store_gaps(store) == {"inputs": set(), "fields": set(), "dataset": set()}
     test_mould = config.test_moulds()[0]
     shutil.rmtree(store / "fields" / "c" / str(sample_index(replicas, test_mould, 1)))
     shutil.rmtree(store / "inputs" / "c" / "0")
-    assert store_gaps(store) == {"inputs": {0}, "fields": {0, test_mould}}
+    assert store_gaps(store) == {"inputs": {0}, "fields": {0, test_mould}, "dataset": set()}
     shutil.rmtree(store / "lattice" / "c" / "1")  # the lattice channels are inputs too
-    assert store_gaps(store) == {"inputs": {0, 1}, "fields": {0, 1, test_mould}}
+    assert store_gaps(store) == {"inputs": {0, 1}, "fields": {0, 1, test_mould}, "dataset": set()}
+
+
+def test_store_gaps_send_each_damaged_chunk_to_the_step_that_writes_it(tmp_path):
+    """A chunk file (not its folder) deleted, truncated or flipped, of any array: its mould
+    is named (inputs, fields), or the array the dataset step writes again."""
+    config, store = simulated_store(tmp_path)
+    write_expected(store)
+    test_mould = config.test_moulds()[0]
+    flipped = store / "inputs_ready" / "c" / "1"  # a flag that no longer decodes
+    data = bytearray(flipped.read_bytes())
+    data[-1] ^= 0x01
+    flipped.write_bytes(bytes(data))
+    (store / "inputs" / "c" / "2" / "0" / "0" / "0").unlink()
+    replica = sample_index(config.replicas(), test_mould, 1)
+    truncated = store / "fields" / "c" / str(replica) / "0" / "0" / "0"
+    truncated.write_bytes(truncated.read_bytes()[:-9])
+    (store / "energy" / "c" / "3").unlink()
+    (store / "split" / "c" / "4").unlink()
+    (store / "fields_mean" / "c" / "0" / "0" / "0" / "0").unlink()
+    assert store_gaps(store) == {"inputs": {1, 2}, "fields": {1, 2, 3, test_mould},
+                                 "dataset": {"split", "fields_mean"}}

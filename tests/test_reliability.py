@@ -188,3 +188,102 @@ def test_rasterise_uses_the_simulations_own_scene(folder, tmp_path):
     truncated.write_bytes(sim.read_bytes()[:300])
     proc = condor("rasterise", truncated, "--out", tmp_path / "h.npy", cwd=tmp_path)
     assert proc.returncode == 2 and "t.npz" in proc.stderr and "Traceback" not in proc.stderr
+
+
+# --- damage the checks must find, and the next run repair bit for bit --------------------------
+
+
+def store_files(workdir):
+    """Every file of the store, by path: a repair must give back the same bytes."""
+    root = store(workdir)
+    return {p.relative_to(root): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def check_store_cli(workdir, *extra):
+    return subprocess.run([sys.executable, "-m", "condor.cli", "check-store", str(store(workdir)),
+                           *extra], capture_output=True, text=True)
+
+
+def jobs(proc):
+    """How many jobs of each rule a run ran."""
+    names = [line.split()[-1].rstrip(":") for line in proc.stderr.splitlines()
+             if line.startswith(("rule ", "localrule "))]
+    return {name: names.count(name) for name in names}
+
+
+def damage(workdir, chunk, how):
+    path = store(workdir) / chunk
+    data = path.read_bytes()
+    if how == "delete":
+        path.unlink()
+    elif how == "truncate":
+        path.write_bytes(data[: len(data) // 2])
+    else:  # flip a bit of the checksum: the frame stays whole, only decoding finds it
+        path.write_bytes(data[:-1] + bytes([data[-1] ^ 0x01]))
+
+
+@pytest.mark.parametrize("chunk, how", [
+    ("fields/c/3/0/0/0", "delete"),   # the file, not the folder c/3
+    ("fields/c/9/0/0/0", "truncate"),  # a replica's
+    ("inputs/c/2/0/0/0", "delete"),   # else the sample reads as a blank mould
+    ("lattice/c/5/0/0/0", "delete"),
+])
+def test_a_deleted_or_truncated_chunk_file_is_found_and_repaired(folder, chunk, how):
+    before = store_files(folder)
+    array, sample = chunk.split("/")[0], int(chunk.split("/")[2])
+    damage(folder, chunk, how)
+    check = check_store_cli(folder)
+    assert check.returncode == 1 and f"corrupt: {sample}" in check.stdout
+    assert f"sample {sample} " in check.stdout and f"array {array}:" in check.stdout
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    # the batch's fields job writes the lost chunk again, lost inputs from the batch's moulds
+    # JSON: no simulation reruns (their timings would differ)
+    assert jobs(proc) == {"fields": 1, "dataset": 1}
+    assert store_files(folder) == before
+
+
+@pytest.mark.parametrize("chunks", [
+    ("fields_mean/c/1/0/0/0", "split/c/1", "mould/c/6"),
+    ("n_replicas_ok/c/0", "field/c/0", "replica/c/9"),
+])
+def test_damaged_derived_and_layout_arrays_are_found_and_repaired(folder, chunks):
+    """Else the evaluation's MAE changes, training drops a mould, reading them raises."""
+    before = store_files(folder)
+    for chunk in chunks:
+        damage(folder, chunk, "delete")
+    check = check_store_cli(folder)
+    assert check.returncode == 1
+    for chunk in chunks:
+        array = chunk.split("/")[0]
+        assert (f"array {array}:" if array != "n_replicas_ok" else "not written") in check.stdout
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert jobs(proc) == {"dataset": 1}
+    assert store_files(folder) == before
+
+
+def test_corrupt_chunks_deep_finds_are_set_aside_and_repaired(folder):
+    before = store_files(folder)
+    for chunk in ("fields/c/3/0/0/0", "energy/c/10", "fields_mean/c/0/0/0/0"):
+        damage(folder, chunk, "flip")
+    assert check_store_cli(folder).returncode == 0  # the frames are whole: only decoding sees it
+    check = check_store_cli(folder, "--deep")
+    assert check.returncode == 1 and "Traceback" not in check.stderr
+    for where in ("sample 3 (mould 3 replica 0), array fields",
+                  "sample 10 (mould 4 replica 1), array energy", "mould 0, array fields_mean"):
+        assert where in check.stdout
+    assert "moved the damaged chunk files" in check.stdout
+    assert (folder / "results" / "dataset.zarr.damaged" / "fields" / "c" / "3").is_dir()
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert jobs(proc) == {"fields": 2, "dataset": 1}
+    assert store_files(folder) == before
+    assert check_store_cli(folder, "--deep").returncode == 0
+
+
+def test_a_corrupt_inputs_ready_flag_is_written_again_and_the_summary_kept(folder):
+    summary = folder / "results" / "dataset_summary.csv"
+    before, table = store_files(folder), summary.read_text()
+    damage(folder, "inputs_ready/c/4", "flip")
+    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    assert jobs(proc) == {"fields": 1, "dataset": 1}
+    assert store_files(folder) == before and summary.read_text() == table
+    assert jobs(run(folder, *small_args(folder, "--until", "dataset"))) == {}  # no loop

@@ -15,10 +15,15 @@ from condor.store import (
     assign_splits,
     check_store,
     check_metadata,
+    chunk_file,
     create_store,
+    inputs_whole,
     open_store,
+    restore_layout,
     sample_index,
     sample_layout,
+    scan_store,
+    set_aside,
     write_expected,
     write_inputs,
     write_sample,
@@ -271,3 +276,144 @@ def test_lattice_channels_round_trip_and_bad_ones_are_refused(tmp_path):
         write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META,
                      lattice=lattice[:1])
     assert check_store(path).set_index("sample").loc[0, "state"] == "missing"  # nothing written
+
+
+# --- every chunk of every array: chunk files, not folders; derived and metadata arrays -------
+
+COUNTS = (1, 3, 1, 2)  # moulds 1 and 3 replicated: samples 0-3, then 4, 5 (mould 1), 6 (mould 3)
+
+
+def _replicated(tmp_path):
+    """A finished store with replicated moulds and their expected fields."""
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=len(COUNTS), replicas=COUNTS))
+    lattice = np.random.default_rng(1).random((2, PIXELS, PIXELS)).astype(np.float32)
+    for mould in range(len(COUNTS)):
+        write_inputs(path, mould, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice)
+    for sample in range(sum(COUNTS)):
+        write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
+    write_expected(path)
+    return path
+
+
+def _files(path):
+    return {p.relative_to(path): p.read_bytes() for p in sorted(path.rglob("*")) if p.is_file()}
+
+
+def _damaged(path, deep=False):
+    return {(d.array, d.index) for d in scan_store(path, deep=deep).damage}
+
+
+@pytest.mark.parametrize("array, index", [
+    ("fields", 3), ("fields", 5), ("inputs", 2), ("lattice", 6), ("energy", 1), ("seed", 0),
+    ("status", 4), ("split", 1), ("mould", 6), ("replica", 5), ("fields_mean", 1),
+    ("fields_std", 0), ("field", 0), ("replicated", 0)])
+def test_a_deleted_chunk_file_of_any_array_is_found_without_decoding(tmp_path, array, index):
+    """The file, not its folder c/<i>, which survives: the fast check lists chunk files."""
+    path = _replicated(tmp_path)
+    assert scan_store(path).damage == []
+    ndim = zarr.open_array(path / array).ndim
+    chunk_file(path, array, index, ndim).unlink()
+    assert (path / array / "c" / str(index)).exists() or ndim == 1
+    found = _damaged(path)
+    if array == "status":  # a sample without its status reads as not yet simulated
+        assert check_store(path).set_index("sample").loc[index, "state"] == "pending"
+    else:
+        assert found == {(array, index)}
+    if array in ("fields", "inputs", "lattice", "energy", "seed", "split", "mould", "replica"):
+        table = check_store(path).set_index("sample")
+        assert table.loc[index, "state"] == "corrupt" and table.loc[index, "lost"] == array
+
+
+def test_the_expected_fields_not_written_are_said_so(tmp_path):
+    path = _replicated(tmp_path)
+    (path / "n_replicas_ok" / "c" / "0").unlink()
+    check = scan_store(path)
+    assert not check.derived and check.damage == []  # what the dataset step writes again
+
+
+@pytest.mark.parametrize("cut", [1, 9, -5])
+def test_a_truncated_or_extended_chunk_is_found_without_decoding(tmp_path, cut):
+    path = _replicated(tmp_path)
+    for array, index in (("fields", 4), ("inputs", 0), ("energy", 2), ("fields_mean", 1),
+                         ("split", 3), ("n_replicas_ok", 0)):
+        chunk = chunk_file(path, array, index, zarr.open_array(path / array).ndim)
+        data = chunk.read_bytes()
+        chunk.write_bytes(data[:-cut] if cut > 0 else data + bytes(-cut))
+    assert _damaged(path) == {("fields", 4), ("inputs", 0), ("energy", 2), ("fields_mean", 1),
+                              ("split", 3), ("n_replicas_ok", 0)}
+
+
+def test_a_chunk_of_another_array_is_found_without_decoding(tmp_path):
+    path = _replicated(tmp_path)
+    shutil.copy(chunk_file(path, "lattice", 2, 4), chunk_file(path, "fields", 2, 4))
+    (problem,) = [d.problem for d in scan_store(path).damage]
+    assert "decodes to" in problem
+
+
+def test_deep_decodes_every_chunk_of_every_array(tmp_path):
+    """A flipped checksum byte leaves the frame whole: only decoding finds it, in any array."""
+    path = _replicated(tmp_path)
+    flipped = {("fields", 1), ("inputs", 3), ("lattice", 0), ("energy", 6), ("solver", 2),
+               ("seed", 5), ("split", 4), ("fields_mean", 0), ("fields_std", 1)}
+    for array, index in flipped:
+        chunk = chunk_file(path, array, index, zarr.open_array(path / array).ndim)
+        data = bytearray(chunk.read_bytes())
+        data[-1] ^= 0x01
+        chunk.write_bytes(bytes(data))
+    fast = _damaged(path)
+    assert fast == {("split", 4)}  # the layout is decoded by the fast check too
+    deep = scan_store(path, deep=True)
+    assert {(d.array, d.index) for d in deep.damage} == flipped
+    assert all("checksum" in d.problem for d in deep.damage)
+    assert set(deep.samples.query("state == 'corrupt'")["sample"]) == {1, 3, 0, 6, 2, 5, 4}
+
+
+def test_deep_finds_a_blank_mould_and_nan_fields(tmp_path):
+    path = _replicated(tmp_path)
+    group = zarr.open_group(path, mode="r+")
+    group["inputs"][2] = np.full((2, PIXELS, PIXELS), 7, "uint8")
+    mean = group["fields_mean"][1]
+    mean[3, 2, 1] = np.nan
+    group["fields_mean"][1] = mean
+    assert _damaged(path) == set()
+    assert _damaged(path, deep=True) == {("inputs", 2), ("fields_mean", 1)}
+
+
+def test_set_aside_moves_damaged_chunks_out_for_the_fast_check_to_find(tmp_path):
+    path = _replicated(tmp_path)
+    chunk = chunk_file(path, "energy", 2, 1)
+    data = bytearray(chunk.read_bytes())
+    data[-1] ^= 0x01
+    chunk.write_bytes(bytes(data))
+    aside = set_aside(path, scan_store(path, deep=True).damage)
+    assert aside == tmp_path / "d.zarr.damaged"
+    assert (aside / "energy" / "c" / "2").read_bytes() == bytes(data)
+    assert {(d.array, d.index, d.problem) for d in scan_store(path).damage} == {
+        ("energy", 2, "is missing")}
+
+
+def test_restore_layout_writes_the_layout_again_bit_for_bit(tmp_path):
+    path = _replicated(tmp_path)
+    before = _files(path)
+    for array, index in (("split", 1), ("mould", 6), ("replica", 5), ("field", 0),
+                         ("sample", 0), ("replicated", 0)):
+        chunk_file(path, array, index, 1).unlink()
+    chunk = chunk_file(path, "cell", 0, 1)
+    chunk.write_bytes(chunk.read_bytes()[:-3])
+    assert len(_damaged(path)) == 7
+    split = spec(n=len(COUNTS), replicas=COUNTS).split
+    assert len(restore_layout(path, split)) == 7
+    assert _files(path) == before and scan_store(path, deep=True).damage == []
+    assert restore_layout(path, split) == []
+
+
+def test_inputs_whole_names_a_mould_whose_inputs_were_lost(tmp_path):
+    path = _replicated(tmp_path)
+    assert all(inputs_whole(path, m) for m in range(len(COUNTS)))
+    chunk_file(path, "lattice", 5, 4).unlink()  # replica 2 of mould 1
+    chunk = chunk_file(path, "inputs_ready", 3, 1)
+    data = bytearray(chunk.read_bytes())
+    data[-1] ^= 0x01
+    chunk.write_bytes(bytes(data))
+    assert [inputs_whole(path, m) for m in range(len(COUNTS))] == [True, False, True, False]

@@ -16,7 +16,7 @@ from condor.moulds import MouldParams, input_channels, save_json
 from condor.scenes import PRESETS, Scene, get_scene
 from condor.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.store import FORMAT, check_metadata, check_store
+from condor.store import FORMAT, check_metadata, scan_store, set_aside
 
 
 class CLIError(Exception):
@@ -135,7 +135,8 @@ def cmd_rasterise(args) -> None:
 
 def cmd_check_store(args) -> None:
     problems = check_metadata(args.store)
-    table = check_store(args.store, deep=args.deep)
+    check = scan_store(args.store, deep=args.deep)
+    table = check.samples
     counts = table["state"].value_counts()
     print(f"{args.store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
     for problem in problems:
@@ -149,11 +150,19 @@ def cmd_check_store(args) -> None:
             if state == "failed":
                 for reason, group in rows.groupby("status"):
                     print(f"    {len(group)} x {reason}")
-            if state == "corrupt":
-                lost = rows[rows["lost"] != ""]
-                for name, group in lost.groupby("lost"):
-                    print(f"    {len(group)} with no {name} chunk")
-    if problems or (table["state"] != "ok").any():
+    for damage in check.damage[:20]:
+        print(f"  damaged: {damage}")
+    if len(check.damage) > 20:
+        print(f"  damaged: +{len(check.damage) - 20} more chunks")
+    if not check.derived:
+        print("  expected fields (fields_mean, fields_std, n_replicas_ok): not written (the "
+              "workflow's dataset step derives them)")
+    moved = set_aside(args.store, check.damage) if args.deep else None
+    if moved:
+        print(f"  moved the damaged chunk files to {moved}")
+    if check.damage:
+        print("  the next `snakemake` run rebuilds the samples and arrays named above")
+    if problems or (table["state"] != "ok").any() or check.damage or not check.derived:
         sys.exit(1)
 
 
@@ -327,7 +336,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("check-store", help="list missing, pending, failed and corrupt samples")
     p.add_argument("store", nargs="?", default="results/dataset.zarr")
     p.add_argument("--deep", action="store_true",
-                   help="also decode every finished sample (checksums, NaN)")
+                   help="also decode every chunk of every array (checksums, NaN) and move the "
+                   "damaged ones aside, to <store>.damaged/, for the next run to rebuild")
     p.set_defaults(func=cmd_check_store)
 
     p = sub.add_parser("train", help="train a surrogate on a dataset store (resumes its epochs)")

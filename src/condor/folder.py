@@ -9,8 +9,9 @@ where its store lost what its flag files claim.
   the run that holds the folder. A second run stops at once with a message; a lock whose
   process is gone (a SIGKILL, a power cut) or whose PID now belongs to another process
   (another start time) is stale and taken over.
-- `store_gaps(store)`: the moulds whose inputs or samples are not in the store, so that the
-  workflow reruns exactly the batches that lost them (a deleted chunk, a killed write).
+- `store_gaps(store)`: the moulds whose inputs or samples are not whole in the store, and the
+  store-wide arrays that are not, so that the workflow reruns exactly the batches (and the
+  dataset step) that write them again (a deleted or truncated chunk, a killed write).
 """
 
 from __future__ import annotations
@@ -21,7 +22,7 @@ import socket
 from pathlib import Path
 
 from condor.config import Config
-from condor.store import StoreError, check_store, open_group
+from condor.store import MOULD_ARRAYS, SAMPLE_ARRAYS, StoreError, open_group, scan_store
 
 LOCK_NAME = ".condor.lock"
 
@@ -134,12 +135,21 @@ class RunLock:
 
 # --- repairs -----------------------------------------------------------------------------------
 
-def store_gaps(store: str | Path) -> dict[str, set[int]]:
-    """Moulds whose samples the store lacks: {"inputs": moulds with a replica whose inputs are
-    not ready or whose inputs or lattice chunk is gone, "fields": those and the moulds with a replica not yet
-    simulated or whose fields chunk is gone}. No chunk is decompressed (condor.store.check_store)."""
-    table = check_store(store)
-    no_inputs = table["state"].eq("missing") | table["lost"].isin(["inputs", "lattice"])
-    no_fields = no_inputs | table["state"].isin(["pending", "corrupt"])
+def store_gaps(store: str | Path) -> dict[str, set]:
+    """What the store lacks, by the step that writes it again (condor.store.scan_store: chunk
+    files listed and their headers read; only the flags and the layout are decompressed):
+    {"inputs": moulds with a replica whose inputs are not ready or with a damaged chunk of an
+    array the mould stage writes, "fields": those and the moulds with a replica not yet
+    simulated or with a damaged chunk of an array the fields stage writes, "dataset": the
+    arrays the dataset step writes again (the layout, the coordinates and the expected
+    fields) that are damaged or not yet derived}."""
+    check = scan_store(store)
+    table = check.samples
+    lost = table["lost"].str.split(",").apply(set)
+    no_inputs = table["inputs_ready"].ne(1) | lost.apply(lambda a: bool(a & set(MOULD_ARRAYS)))
+    no_fields = (no_inputs | table["status"].isna() | table["status"].eq("")
+                 | lost.apply(lambda a: bool(a & set(SAMPLE_ARRAYS))))
+    dataset = {d.array for d in check.damage if d.array not in (*MOULD_ARRAYS, *SAMPLE_ARRAYS)}
     return {"inputs": set(table.loc[no_inputs, "mould"].astype(int)),
-            "fields": set(table.loc[no_fields, "mould"].astype(int))}
+            "fields": set(table.loc[no_fields, "mould"].astype(int)),
+            "dataset": dataset | (set() if check.derived else {"n_replicas_ok"})}

@@ -28,7 +28,8 @@ rule dataset:
     conda:
         CONDA_ENV
     input:
-        expand(f"{R}/fields/batch_{{batch}}.json", batch=BATCH_IDS),
+        batches=expand(f"{R}/fields/batch_{{batch}}.json", batch=BATCH_IDS),
+        repair=repair("dataset"),
     output:
         f"{R}/dataset_summary.csv",
     params:

@@ -21,7 +21,6 @@ rule moulds:
         CONDA_ENV
     input:
         manifest=STORE_MANIFEST,
-        repair=repair("moulds"),
     output:
         f"{R}/moulds/batch_{{batch}}.json",
     params:

@@ -7,9 +7,11 @@ The workflow's scripts and the `condor` CLI call these and nothing else:
 2. `make_moulds`: generate and validate a batch of moulds; geometry JSON + the store's inputs;
 3. `simulate_batch`: every replica of every mould of a batch, one result file each (a failed
    simulation is a result too, with its reason);
-4. `write_fields`: rasterise each ok result into the store; failures keep their reason;
-5. `finish_dataset`: the expected fields and spread of replicated moulds, and the per-sample
-   table; it fails, naming them, when samples are missing.
+4. `write_fields`: rasterise each ok result into the store; failures keep their reason (and
+   inputs the store lost are written again from the batch's moulds JSON);
+5. `finish_dataset`: the store's layout where it was damaged, the expected fields and spread
+   of replicated moulds, and the per-sample table; it fails, naming them, when samples are
+   missing.
 Figures: `mould_gallery`, `sample_figure`.
 """
 
@@ -32,8 +34,8 @@ from condor.progress import progress
 from condor.scenes import Scene
 from condor.seeds import replica_seed
 from condor.simulate import SimResult, simulate, warm_up
-from condor.store import (check_store, create_store, open_store, sample_index, write_expected,
-                          write_inputs, write_sample)
+from condor.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
+                          sample_index, write_expected, write_inputs, write_sample)
 
 log = logging.getLogger("condor")
 
@@ -93,10 +95,15 @@ def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | N
     write_json_atomic(out_json, [m.to_dict() for m in moulds])
     if store is not None:
         for mould in moulds:
-            write_inputs(store, mould.mould_id, input_channels(mould, config.scene.pixels),
-                         mould_metadata(mould), lattice=model_inputs.of_mould(mould, config.scene))
+            write_mould_inputs(config, store, mould)
     log.info("moulds %s written to %s", _span(ids), out_json)
     return moulds
+
+
+def write_mould_inputs(config: Config, store: str | Path, mould: Mould) -> None:
+    """One mould's input channels and metadata into every replica of it in the store."""
+    write_inputs(store, mould.mould_id, input_channels(mould, config.scene.pixels),
+                 mould_metadata(mould), lattice=model_inputs.of_mould(mould, config.scene))
 
 
 def load_moulds(path: str | Path) -> list:
@@ -190,10 +197,15 @@ def max_force(result: SimResult) -> float:
 
 def write_fields(config: Config, sims_dir: str | Path, moulds_json: str | Path,
                  store: str | Path, out_summary: str | Path) -> dict:
-    """Rasterise each simulation of the batch into the store; failures keep their reason."""
+    """Rasterise each simulation of the batch into the store; failures keep their reason.
+    A mould whose inputs the store lost gets them again first, from the geometry its
+    simulations used (`moulds_json`): the same bytes the mould stage wrote."""
     replicas = config.replicas()
     summary = {}
     for mould in load_moulds(moulds_json):
+        if not inputs_whole(store, mould.mould_id):
+            log.info("mould %d: the store lost its inputs; written again", mould.mould_id)
+            write_mould_inputs(config, store, mould)
         for replica in range(replicas[mould.mould_id]):
             path = sim_file(sims_dir, mould.mould_id, replica)
             if not path.is_file():
@@ -221,15 +233,23 @@ class IncompleteStoreError(RuntimeError):
     """Samples the store should hold are missing or corrupt; the message names them."""
 
 
-def finish_dataset(store: str | Path, out_csv: str | Path) -> pd.DataFrame:
-    """Derive the expected fields of replicated moulds, then write the per-sample table.
-    IncompleteStoreError when a sample is missing, pending or corrupt."""
+def finish_dataset(store: str | Path, out_csv: str | Path, split=None) -> pd.DataFrame:
+    """Write again whatever of the store's layout is lost or damaged (the coordinates, each
+    sample's mould, replica and, given the per-mould `split`, split: condor.store.
+    restore_layout), derive the expected fields of replicated moulds, then write the
+    per-sample table. IncompleteStoreError, one line naming the samples, their damaged arrays
+    and the way out, when a sample is missing, pending or corrupt."""
+    restored = restore_layout(store, split)
+    if restored:
+        log.info("%s: rewrote the layout chunks %s", store, ", ".join(restored))
     table = check_store(store)
     bad = table[~table["state"].isin(["ok", "failed"])]
     if len(bad):
-        shown = ", ".join(f"{r.sample} ({r.state})" for r in bad.head(12).itertuples())
-        raise IncompleteStoreError(f"{len(bad)} sample(s) of {store} are not finished: {shown}; "
-                                   "rerun the workflow (it repairs what is missing)")
+        shown = ", ".join(f"{r.sample} ({r.state}{': ' + r.lost if r.lost else ''})"
+                          for r in bad.head(12).itertuples())
+        raise IncompleteStoreError(
+            f"{len(bad)} sample(s) of {store} are not finished: {shown}; run snakemake again "
+            f"(it rebuilds what the store lacks; `condor check-store {store}` lists it)")
     n = write_expected(store)
     table.to_csv(out_csv, index=False)
     log.info("%s: %s; %d replicated moulds", store,
