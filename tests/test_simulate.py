@@ -162,7 +162,14 @@ def test_every_result_reports_its_residual_force_and_cost():
     default = simulate(SQUARE, TWO_POSTS, 2.0, seed=1)
     assert default.solver == DEFAULT_SOLVER
     assert default.info["max_force"] <= DEFAULT_FTOL[DEFAULT_SOLVER]
-    assert default.info["evaluations"] == default.info["min_evaluations"]
+    # the relaxed anneal's cost: its trials' bonds, its relaxations and the final L-BFGS
+    info = default.info
+    assert info["evaluations"] == pytest.approx(info["anneal_bonds_evaluated"] / lat.n_bonds
+                                                + info["relax_evaluations"]
+                                                + info["min_evaluations"])
+    assert info["relax_evaluations"] > 0 and info["min_evaluations"] > 0
+    quench = simulate(SQUARE, TWO_POSTS, 2.0, "lbfgs", seed=1)
+    assert quench.info["evaluations"] == quench.info["min_evaluations"]
 
 
 def test_anneal_cost_counts_the_bonds_its_trials_evaluated():

@@ -4,19 +4,21 @@
 isotropic random orientations, runs a solver and checks the result. Solvers and the meaning
 and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
 
-  * "lbfgs" (the default, DEFAULT_SOLVER): L-BFGS with exact walls (`condor.lbfgs`) from the
-                lattice; budget = energy+gradient evaluations; ftol = largest residual force.
+  * "lbfgs":    L-BFGS with exact walls (`condor.lbfgs`) from the lattice (the quench, the
+                default until 2026-12); budget = energy+gradient evaluations; ftol = largest
+                residual force.
   * "anneal":   the paper's Metropolis annealing; budget = moves per mobile cell
                 (the paper's is 1e6).
   * "minimise": FIRE (soft walls, then projected inside) from the lattice; budget =
                 energy+gradient evaluations.
   * "hybrid":   a short anneal (budget = its moves per cell) that lets orientations find
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
-  * "relaxed_anneal": `condor.anneal.relaxed_anneal` over the temperatures where the
-                orientation order forms (RELAXED_WINDOW), its positions relaxed by L-BFGS
-                after every RELAXED_SWEEPS sweeps (RELAXED_RELAX evaluations), then L-BFGS to
-                ftol; budget = its moves per cell. It samples the paper's annealed ensemble
-                (docs/model.md, "A fast sampler of the paper's ensemble").
+  * "relaxed_anneal" (the default, DEFAULT_SOLVER): `condor.anneal.relaxed_anneal` over
+                the temperatures where the orientation order forms (RELAXED_WINDOW), its
+                positions relaxed by L-BFGS after every RELAXED_SWEEPS sweeps (RELAXED_RELAX
+                evaluations), then L-BFGS to ftol; budget = its moves per cell. It samples the
+                paper's annealed ensemble at 1.7x the quench's evaluations (docs/model.md,
+                "The paper's CONDOR, and a fast sampler of it").
 
 `simulate_lattice` runs a solver from a given start state (used by condor.stability and
 condor.studies).
@@ -59,15 +61,15 @@ from condor.lattice import Lattice, build_lattice, signed_volumes
 from condor.walls import residual_forces
 
 SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid", "relaxed_anneal")
-DEFAULT_SOLVER = "lbfgs"
+DEFAULT_SOLVER = "relaxed_anneal"
 DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
                   "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0,
-                  "relaxed_anneal": 300.0}
+                  "relaxed_anneal": 150.0}
 DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
                 "hybrid": minimise_mod.FTOL, "relaxed_anneal": lbfgs_mod.FTOL}
 RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
 RELAXED_SWEEPS = 10  # sweeps between two relaxations of the positions
-RELAXED_RELAX = 20  # L-BFGS evaluations of each relaxation
+RELAXED_RELAX = 40  # L-BFGS evaluations of each relaxation
 ESCAPE_TOL = 0.25  # l0
 FOLD_FRACTION = 0.01  # of tetrahedra
 COLLAPSE_LENGTH = 0.35  # l0, nearest-neighbour bonds
