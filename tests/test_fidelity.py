@@ -88,3 +88,19 @@ def test_fidelity_table_scores_solvers_against_the_shipped_reference(tmp_path):
     other = fidelity_table(get_scene("tiny", depth=3.0), 2026, [("lbfgs", None)], 2,
                            folder=folder)
     assert other.empty and list(other.columns) == list(FIDELITY_COLUMNS)
+
+
+def test_prediction_row_recovers_a_predictors_known_error():
+    from condor.studies.fidelity import prediction_row
+    rng = np.random.default_rng(1)
+    m, shape = 16, (8, 6, 6)
+    mu = rng.uniform(0.5, 1.5, (m,) + shape)
+    shift = 0.04 * rng.standard_normal((m,) + shape)
+    refs = _draw(rng, mu, 0.2, 6)
+    row = prediction_row("surrogate unet", "tiny", "ref", mu + shift, refs, list(range(m)))
+    true = float(np.sqrt(np.mean(shift**2)))
+    assert row["distance"] == pytest.approx(true, rel=0.25)  # the 6 replicas' noise removed
+    assert row["distance_lo"] <= true <= row["distance_hi"]
+    assert row["n_seeds"] == 1 and np.isnan(row["evaluations_per_mould"])
+    plain = float(np.sqrt(np.mean((mu + shift - refs.mean(axis=1)) ** 2)))
+    assert plain > 2 * true  # what the uncorrected error would have said

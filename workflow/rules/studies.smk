@@ -132,9 +132,12 @@ rule fidelity:
     conda:
         CONDA_ENV
     input:
-        STORE_MANIFEST,  # the numba cache is warm before any simulation job
+        manifest=STORE_MANIFEST,  # the numba cache is warm before any simulation job
+        checkpoints=expand(f"{R}/models/{{variant}}.pt", variant=list(VARIANTS)),
     output:
         report(f"{STUDIES}/fidelity.csv", caption="../report/fidelity.rst", category="Simulator"),
+    params:
+        variants=list(VARIANTS),
     log:
         f"{R}/logs/studies/fidelity.log",
     threads: 1

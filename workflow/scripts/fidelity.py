@@ -1,5 +1,7 @@
-"""The dataset's solver against the paper's CONDOR (the shipped reference anneals)."""
+"""The dataset's solver and the surrogates against the paper's CONDOR (the shipped reference
+anneals)."""
 from condor.stages import start_job
 from condor.stages.studies import fidelity
 
-fidelity(start_job(snakemake), snakemake.output[0])
+fidelity(start_job(snakemake), dict(zip(snakemake.params.variants, snakemake.input.checkpoints)),
+         snakemake.output[0])

@@ -24,11 +24,13 @@ import torch
 from condor import plots
 from condor.config import Config
 from condor.stability import run_cases
+from condor.moulds import input_channels
 from condor.stages.dataset import load_moulds
 from condor.store import open_store
 from condor.studies import accuracy as accuracy_study
 from condor.studies.convergence import convergence as convergence_study
-from condor.studies.fidelity import fidelity_table
+from condor.studies.fidelity import fidelity_table, prediction_row, reference_ensemble
+from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
 from condor.studies.reference import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
@@ -226,14 +228,29 @@ def stability(config: Config, out_csv) -> pd.DataFrame:
     return table
 
 
-def fidelity(config: Config, out_csv) -> pd.DataFrame:
+def fidelity(config: Config, checkpoints: dict, out_csv) -> pd.DataFrame:
     """The dataset's solver, and the L-BFGS quench beside it, against the paper reference of
-    the config's scene and seed (`simulation.replicas.test` seeds a mould); the columns only
-    when the product holds no reference of them."""
+    the config's scene and seed (`simulation.replicas.test` seeds a mould); then each surrogate
+    of `checkpoints` ({variant: path}) on the reference moulds it did not train on. The
+    columns only when the product holds no reference of them."""
     solver, budget = config.solver()
     solvers = [(solver, budget)] + ([("lbfgs", None)] if solver != "lbfgs" else [])
     table = fidelity_table(config.scene, config.seed, solvers,
                            int(config.simulation["replicas"]["test"]), log=log.info)
+    reference = reference_ensemble(config.scene, config.seed)
+    if reference is not None:
+        moulds, ref_fields, _, label = reference
+        splits = config.splits()
+        held = [i for i, m in enumerate(moulds) if m < len(splits) and splits[m] != "train"]
+        rows = []
+        for name, path in checkpoints.items() if held else ():
+            predictor = Predictor(path, device="cpu")
+            shapes = [mould_of(config.scene, config.seed, moulds[i]) for i in held]
+            masks = np.stack([input_channels(m, config.scene.pixels) for m in shapes])
+            predicted = predictor(masks, **predictor.mould_arguments(shapes)).normalised
+            rows.append(prediction_row(f"surrogate {name}", config.scene.name, label,
+                                       predicted, ref_fields[held], [moulds[i] for i in held]))
+        table = pd.concat([table, pd.DataFrame(rows)], ignore_index=True)
     table.to_csv(out_csv, index=False)
     if table.empty:
         log.info("fidelity: no paper reference of scene %s, seed %s", config.scene.name,

@@ -97,38 +97,70 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
     return fields, energy, evaluations
 
 
-def fidelity_table(scene, dataset_seed: int, solvers, replicas: int, folder=None,
-                   log=None) -> pd.DataFrame:
-    """Each (solver, budget) of `solvers` against the paper reference the product ships for
-    this scene and seed (`paper_reference.load_reference`, its top rung): FIDELITY_COLUMNS and
-    the differences of `fidelity_row`. Empty (the columns only) when no reference exists."""
+def reference_ensemble(scene, dataset_seed: int, folder=None):
+    """The paper reference the product ships for this scene and seed, at its top rung:
+    (mould ids, normalised fields (M, R, 8, H, W), energies per cell (M, R), label such as
+    'anneal 1e5'), NaN-padded; None when there is none (or the scene is not the preset the
+    references were run in) or no mould has 2 runs."""
     from condor.scenes import PRESETS
     from condor.studies.paper_reference import budget_tag, load_reference, reference_moulds
 
     if scene.name not in PRESETS or scene != PRESETS[scene.name]:
-        return pd.DataFrame(columns=list(FIDELITY_COLUMNS))  # references are of the presets
+        return None
     moulds = reference_moulds(scene.name, dataset_seed, folder)
     refs = [load_reference(scene.name, dataset_seed, m, folder=folder) for m in moulds]
     keep = [i for i, runs in enumerate(refs) if len(runs) >= 2]
     if not keep:
-        return pd.DataFrame(columns=list(FIDELITY_COLUMNS))
+        return None
     moulds = [moulds[i] for i in keep]
     refs = [refs[i] for i in keep]
     width = max(len(runs) for runs in refs)
-    ref_fields = np.full((len(moulds), width, 8, scene.pixels, scene.pixels), np.nan)
-    ref_energy = np.full((len(moulds), width), np.nan)
+    fields = np.full((len(moulds), width, 8, scene.pixels, scene.pixels), np.nan)
+    energy = np.full((len(moulds), width), np.nan)
     for i, runs in enumerate(refs):
         for k, run in enumerate(runs):
-            ref_fields[i, k] = run.fields(scene)
-            ref_energy[i, k] = run.energy_per_cell
+            fields[i, k] = run.fields(scene)
+            energy[i, k] = run.energy_per_cell
     rungs = {run.budget for runs in refs for run in runs}
-    reference = "anneal " + "/".join(budget_tag(b) for b in sorted(rungs))
+    return moulds, fields, energy, "anneal " + "/".join(budget_tag(b) for b in sorted(rungs))
+
+
+def fidelity_table(scene, dataset_seed: int, solvers, replicas: int, folder=None,
+                   log=None) -> pd.DataFrame:
+    """Each (solver, budget) of `solvers` against the paper reference the product ships for
+    this scene and seed (`reference_ensemble`): FIDELITY_COLUMNS and the differences of
+    `fidelity_row`. Empty (the columns only) when no reference exists."""
+    reference = reference_ensemble(scene, dataset_seed, folder)
+    if reference is None:
+        return pd.DataFrame(columns=list(FIDELITY_COLUMNS))
+    moulds, ref_fields, ref_energy, label = reference
     rows = []
     for solver, budget in solvers:
         fields, energy, evaluations = solver_ensemble(scene, dataset_seed, moulds, solver,
                                                       budget, replicas, log)
-        row = fidelity_row(solver, scene.name, reference, fields, ref_fields, evaluations,
+        row = fidelity_row(solver, scene.name, label, fields, ref_fields, evaluations,
                            energy, ref_energy)
         row["moulds"] = " ".join(map(str, moulds))
         rows.append(row)
     return pd.DataFrame(rows)
+
+
+def prediction_row(method: str, scene: str, reference: str, predicted, ref_fields,
+                   moulds) -> dict:
+    """A predictor's answers (M, 8, H, W), normalised, against the reference's expected fields:
+    the noise-corrected RMS error (`estimators.mse_against_expected`) in the distance columns,
+    one answer a mould (n_seeds 1), no simulation cost."""
+    err = est.mse_against_expected(np.asarray(predicted, dtype=np.float64), ref_fields)
+    distance, lo, hi = est.bootstrap_interval(err.corrected)
+    diff = mean_orientation(predicted) - np.nanmean(mean_orientation(ref_fields), axis=1)
+    row = {"method": method, "scene": scene, "reference": reference,
+           "n_moulds": int(len(moulds)), "n_seeds": 1, "distance": distance,
+           "distance_lo": lo, "distance_hi": hi,
+           "replica_noise": est.root_mean(est.noise_ceiling(ref_fields)),
+           "evaluations_per_mould": float("nan")}
+    for name, values in zip(("sx2", "sy2", "sz2"), diff.T):
+        row[f"{name}_difference"] = float(np.mean(values))
+        row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
+    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    row["moulds"] = " ".join(map(str, moulds))
+    return row
