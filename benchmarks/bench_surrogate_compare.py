@@ -59,10 +59,12 @@ def cpu_seconds() -> float:
     return time.process_time()
 
 
-def train_timed(ds, cfg: TrainConfig, path: Path) -> tuple[float, float, list]:
-    """Train (or continue) to cfg.epochs; CPU and wall seconds of this call."""
+def train_timed(ds, cfg: TrainConfig, path: Path, stop_after=None) -> tuple[float, float, list]:
+    """Train (or continue) to cfg.epochs, or to `stop_after` of them; CPU and wall seconds of
+    this call."""
     c0, w0 = cpu_seconds(), time.perf_counter()
-    history = train(ds, cfg, path, log=lambda line: print("   ", line, flush=True))
+    history = train(ds, cfg, path, log=lambda line: print("   ", line, flush=True),
+                    stop_after=stop_after)
     return cpu_seconds() - c0, time.perf_counter() - w0, history
 
 
@@ -128,8 +130,9 @@ def main():
     epochs = 0
     while variant_cpu < paper_cpu and epochs < args.max_variant_epochs:
         epochs += 1
-        cfg = TrainConfig.from_dict({**base_cfg.to_dict(), "epochs": epochs, "unet": base_cfg.unet})
-        cpu, wall, _ = train_timed(ds, cfg, work / "variant.pt")
+        cfg = TrainConfig.from_dict({**base_cfg.to_dict(), "epochs": args.max_variant_epochs,
+                                     "unet": base_cfg.unet})  # one run, continued epoch by epoch
+        cpu, wall, _ = train_timed(ds, cfg, work / "variant.pt", stop_after=epochs)
         variant_cpu, variant_wall = variant_cpu + cpu, variant_wall + wall
         if epochs == args.paper_epochs:
             same_epochs_mae = test_mae(work / "variant.pt", ds)

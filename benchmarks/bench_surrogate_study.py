@@ -223,8 +223,9 @@ def main() -> None:
         for epochs in sorted(set(args.epochs_at) | {final_epochs}):
             if epochs > final_epochs:
                 continue
-            cfg.epochs = epochs
-            history = train(ds, cfg, checkpoint, log=lambda line: print(args.name, line, flush=True))
+            # snapshots of the one run of final_epochs (its schedule), each resumed
+            history = train(ds, cfg, checkpoint, log=lambda line: print(args.name, line, flush=True),
+                            stop_after=epochs)
             if epochs != final_epochs:
                 snapshots[epochs] = out / f"{args.name}@{epochs}.pt"
                 shutil.copyfile(checkpoint, snapshots[epochs])

@@ -1,16 +1,24 @@
 """`condor train`, `condor evaluate` and `condor predict` on a real-format store holding the
 synthetic dataset (condor.surrogate.synthetic), through the CLI's `main`."""
 
+import builtins
+import json
+import os
+import shutil
+import subprocess
+import sys
+
 import numpy as np
 import pandas as pd
 import pytest
+import torch
 import xarray as xr
 from PIL import Image
 
 from condor import cli
 from condor.moulds import input_channels, load_json
 from condor.store import StoreSpec, create_store, open_store, write_inputs, write_sample
-from condor.surrogate.checkpoint import load_checkpoint
+from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from condor.surrogate.models import PREDICTION_MODES
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
@@ -55,23 +63,54 @@ def test_parser_choices_agree_with_library():
     assert cli.MODEL_KINDS == MODEL_KINDS and cli.PREDICTION_MODES == PREDICTION_MODES
 
 
-def test_train_writes_checkpoint_and_resumes(trained, capsys):
-    store, checkpoint = trained
+def test_train_writes_checkpoint(trained):
+    _, checkpoint = trained
     state = load_checkpoint(checkpoint)
     assert state["epoch"] == 2 and state["config"]["model"] == "unet_l1"
     assert state["generator_config"]["size"] == SIZE and state["generator_config"]["base"] == 8
     assert state["data"]["pixel_size"] == pytest.approx(BOX / SIZE)
     assert state["data"]["n_train"] == 12  # 6 of every 8 samples are "train"
-    cli.main(["train", "--store", str(store), "--checkpoint", str(checkpoint), "--epochs", "3", *FAST])
+    assert len(state["data"]["fingerprint"]) == 64  # of the data it was trained on
+
+
+def test_train_never_overwrites_and_resumes_only_an_interrupted_run(trained, tmp_path, capsys,
+                                                                     monkeypatch):
+    store, trained_checkpoint = trained
+    checkpoint = tmp_path / "my_model.pt"
+    shutil.copyfile(trained_checkpoint, checkpoint)
+    before = checkpoint.read_bytes()
+    argv = ["train", "--store", str(store), "--checkpoint", str(checkpoint), "--epochs", "3", *FAST]
+    # An existing checkpoint is never replaced without --force: one line naming it.
+    code = run_main(argv)
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "my_model.pt" in err and "--force" in err
+    assert checkpoint.read_bytes() == before
+
+    def dies_after_epoch_1(*args, **kwargs):
+        if str(args[0]).startswith("epoch 1/"):
+            raise KeyboardInterrupt
+        builtins.print(*args, **kwargs)
+
+    with monkeypatch.context() as patch:
+        patch.setattr(cli, "print", dies_after_epoch_1, raising=False)
+        with pytest.raises(KeyboardInterrupt):
+            cli.main([*argv, "--force"])
+    assert checkpoint.read_bytes() == before  # nothing is published before the last epoch
+    # An interrupted run of other settings is not discarded without --fresh.
+    code = run_main([*argv, "--force", "--base", "16"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "cannot resume" in err and "--fresh" in err
+    assert "base" in err
+    # The same settings and data resume it.
+    cli.main([*argv, "--force"])
     out = capsys.readouterr().out
     assert "resuming from" in out and "epoch 3/3" in out and "epoch 1/3" not in out
-    assert "val_mae" in out
     assert load_checkpoint(checkpoint)["epoch"] == 3
-    # A different architecture cannot resume: one line on stderr, exit status 2.
-    code = run_main(["train", "--store", str(store), "--checkpoint", str(checkpoint),
-                     "--epochs", "4", *FAST[:-4], "--base", "16"])
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "cannot resume" in err and "unet" in err
+    # A finished run is only a copy of the published model: other settings train from scratch.
+    cli.main([*argv[:-len(FAST) - 2], "--epochs", "1", *FAST, "--force"])
+    out = capsys.readouterr().out
+    assert "training from scratch" in out and "epochs: checkpoint 3 vs now 1" in out
+    assert load_checkpoint(checkpoint)["epoch"] == 1
 
 
 def test_missing_checkpoint_is_one_line_and_exit_2(trained, tmp_path, capsys):
@@ -193,3 +232,180 @@ def test_design_refuses_a_bad_objective_before_any_search(trained, tmp_path, cap
     err = capsys.readouterr().err
     assert code == 2 and words in err and err.count("\n") == 1
     assert not (tmp_path / "d").exists()  # nothing searched, nothing written
+
+
+def test_a_file_that_is_not_a_checkpoint_is_one_line(trained, tmp_path, capsys):
+    store, _ = trained
+    torch.save(torch.nn.Linear(2, 2), tmp_path / "module.pt")  # a pickled model, not a dict
+    np.save(tmp_path / "array.npy", np.zeros(3))
+    (tmp_path / "notes.txt").write_text("not a checkpoint")
+    np.save(tmp_path / "m.npy", np.zeros((2, SIZE, SIZE), np.uint8))
+    for name in ("module.pt", "array.npy", "notes.txt"):
+        bad = str(tmp_path / name)
+        for argv in (["predict", str(tmp_path / "m.npy"), "--checkpoint", bad, "--out",
+                      str(tmp_path / "f.zarr")],
+                     ["evaluate", "--store", str(store), "--checkpoint", bad, "--out",
+                      str(tmp_path / "ev")],
+                     ["design", "--objective", "alignment:x", "--checkpoint", bad, "--out",
+                      str(tmp_path / "d")]):
+            code = run_main(argv)
+            err = capsys.readouterr().err
+            assert code == 2 and err.count("\n") == 1, (argv, err)
+            assert name in err and "not a surrogate checkpoint" in err and "weights_only" not in err
+    assert not {"f.zarr", "ev", "d"} & {p.name for p in tmp_path.iterdir()}
+
+
+# --- design's output folder ---------------------------------------------------------------
+
+DESIGN = ["--objective", "alignment:x", "--budget", "4", "--top", "1", "--random", "1",
+          "--replicas", "1"]
+
+
+@pytest.fixture(scope="module")
+def design_checkpoint(trained, tmp_path_factory):
+    """The trained checkpoint with a mould depth, so that its designs can be simulated."""
+    state = load_checkpoint(trained[1])
+    state["data"]["depth"] = 2.0
+    path = tmp_path_factory.mktemp("design") / "depth.pt"
+    save_checkpoint(state, path)
+    return path
+
+
+def _snapshot(*folders):
+    return {p: p.read_bytes() for folder in folders for p in sorted(folder.rglob("*"))
+            if p.is_file()}
+
+
+def test_design_force_never_deletes_what_design_did_not_write(trained, design_checkpoint,
+                                                              tmp_path, capsys, monkeypatch):
+    store = tmp_path / "data.zarr"
+    shutil.copytree(trained[0], store)
+    results = tmp_path / "results"
+    (results / "models").mkdir(parents=True)
+    (results / "dataset.json").write_text("{}")
+    (results / "models" / "unet.pt").write_bytes(b"a model")
+    user = tmp_path / "user"
+    (user / "thesis").mkdir(parents=True)
+    (user / "thesis" / "chapter1.tex").write_text("\\chapter{One}")
+    (user / "notes.txt").write_text("notes")
+    monkeypatch.chdir(user)
+    before = _snapshot(tmp_path)
+    for out, words in {str(store): "is a Zarr store", str(results): "results folder",
+                       ".": "is the current directory", str(tmp_path): "above the current",
+                       "thesis": "did not write"}.items():
+        code = run_main(["design", *DESIGN, "--checkpoint", str(design_checkpoint), "--out",
+                         out, "--force"])
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and words in err and repr(out) in err, err
+        assert "Errno" not in err
+    assert _snapshot(tmp_path) == before
+
+
+def test_design_force_replaces_only_its_own_folder(design_checkpoint, tmp_path, capsys):
+    out = tmp_path / "design"
+    argv = ["design", *DESIGN, "--checkpoint", str(design_checkpoint), "--out", str(out)]
+    cli.main(argv)
+    mark = json.loads((out / "condor_design.json").read_text())
+    assert mark["written_by"] == "condor design"
+    written = {str(p.relative_to(out)) for p in out.iterdir() if p.name != "figures"}
+    written |= {f"figures/{p.name}" for p in (out / "figures").iterdir()}
+    assert written - {"condor_design.json"} <= set(mark["files"])
+    assert {"designs.csv", "design_01.json", "predictions.zarr", "figures/designs.png"} <= written
+    code = run_main(argv)  # an earlier design: replaced with --force only
+    assert code == 2 and "--force" in capsys.readouterr().err
+    (out / "design_01.json").write_text("an earlier design")
+    cli.main([*argv, "--force"])
+    assert (out / "design_01.json").read_text() != "an earlier design"
+    (out / "mine.txt").write_text("mine")  # the user's file in design's folder
+    before = _snapshot(out)
+    code = run_main([*argv, "--force"])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "mine.txt" in err
+    assert _snapshot(out) == before
+
+
+# --- a read-only output folder --------------------------------------------------------------
+
+RUN_EACH = """
+import contextlib, io, json, sys, traceback
+from condor import cli
+results = []
+for argv in json.loads(sys.argv[1]):
+    err = io.StringIO()
+    with contextlib.redirect_stderr(err):
+        try:
+            cli.main(argv)
+            code = 0
+        except SystemExit as exit:
+            code = exit.code
+        except BaseException:
+            code, err = "traceback", io.StringIO(traceback.format_exc())
+    results.append([code, err.getvalue()])
+print(json.dumps(results))
+"""
+
+
+def _without_write_permission(folder):
+    """The command prefix under which `folder` (mode 555) cannot be written: none for a user,
+    root without the capabilities that override file permissions (setpriv)."""
+    if os.geteuid() != 0:
+        return []
+    prefix = [shutil.which("setpriv") or "setpriv",
+              "--bounding-set=-dac_override,-dac_read_search,-fowner", "--"]
+    try:
+        probe = subprocess.run([*prefix, "touch", str(folder / "probe")], capture_output=True)
+    except OSError:
+        probe = None
+    if probe is None or probe.returncode == 0:
+        pytest.skip("running as root and cannot drop the capability to write anywhere")
+    return prefix
+
+
+def test_a_read_only_output_folder_is_one_line(trained, design_checkpoint, tmp_path):
+    store, checkpoint = trained
+    folder = tmp_path / "readonly"
+    folder.mkdir()
+    np.save(tmp_path / "m.npy", synthetic_dataset(16, SIZE)["inputs"].values[3])
+    folder.chmod(0o555)
+    try:
+        prefix = _without_write_permission(folder)
+        commands = [
+            ["train", "--store", str(store), "--checkpoint", str(folder / "m.pt"), "--epochs",
+             "1", *FAST],
+            ["evaluate", "--store", str(store), "--checkpoint", str(checkpoint), "--out",
+             str(folder / "ev")],
+            ["predict", str(tmp_path / "m.npy"), "--checkpoint", str(checkpoint), "--out",
+             str(folder / "f.zarr")],
+            ["predict", str(tmp_path / "m.npy"), "--checkpoint", str(checkpoint), "--out",
+             str(folder / "f.png")],
+            ["mould", "--seed", "1", "--out", str(folder / "m.json")],
+            ["design", *DESIGN, "--checkpoint", str(design_checkpoint), "--out",
+             str(folder / "d")],
+        ]
+        run = subprocess.run([*prefix, sys.executable, "-c", RUN_EACH, json.dumps(commands)],
+                             capture_output=True, text=True, timeout=600)
+    finally:
+        folder.chmod(0o755)
+    assert run.returncode == 0, run.stderr
+    for argv, (code, err) in zip(commands, json.loads(run.stdout.splitlines()[-1])):
+        assert code == 2 and err.count("\n") == 1, (argv, err)
+        assert "permission denied" in err and "readonly" in err, (argv, err)
+    assert not list(folder.iterdir())
+
+
+def test_predict_force_replaces_only_a_prediction(trained, tmp_path, capsys):
+    _, checkpoint = trained
+    np.save(tmp_path / "m.npy", synthetic_dataset(16, SIZE)["inputs"].values[3])
+    argv = ["predict", str(tmp_path / "m.npy"), "--checkpoint", str(checkpoint), "--force",
+            "--out"]
+    cli.main([*argv, str(tmp_path / "f.zarr")])
+    cli.main([*argv, str(tmp_path / "f.zarr")])  # its own prediction: replaced
+    assert xr.open_zarr(tmp_path / "f.zarr")["raw"].shape == (8, SIZE, SIZE)
+    mine = tmp_path / "mine.zarr"  # a folder predict did not write
+    (mine / "thesis").mkdir(parents=True)
+    (mine / "thesis" / "chapter1.tex").write_text("mine")
+    capsys.readouterr()
+    code = run_main([*argv, str(mine)])
+    err = capsys.readouterr().err
+    assert code == 2 and err.count("\n") == 1 and "mine.zarr" in err and "did not write" in err
+    assert (mine / "thesis" / "chapter1.tex").read_text() == "mine"

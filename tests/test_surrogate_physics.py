@@ -273,10 +273,19 @@ PHYSICS = dict(model="unet", head="physics", loss="gaussian",
                lr=2e-3, seed=2, augment=True)
 
 
+class Killed(Exception):
+    pass
+
+
+def kill(line):  # called after the epoch's checkpoint is written
+    raise Killed(line)
+
+
 def test_physics_training_resumes_bit_identically(physics_ds, tmp_path):
     cfg = TrainConfig(**PHYSICS, epochs=2)
     full = train(physics_ds, cfg, tmp_path / "full.pt", log=QUIET)
-    train(physics_ds, TrainConfig(**PHYSICS, epochs=1), tmp_path / "resumed.pt", log=QUIET)
+    with pytest.raises(Killed):
+        train(physics_ds, cfg, tmp_path / "resumed.pt", log=kill)
     resumed = train(physics_ds, cfg, tmp_path / "resumed.pt", log=QUIET)
     a, b = (load_checkpoint(tmp_path / f)["generator"] for f in ("full.pt", "resumed.pt"))
     assert all(torch.equal(a[k], b[k]) for k in a)
@@ -323,12 +332,15 @@ def test_checkpoint_records_the_kernel_width_and_older_ones_still_resume(physics
         predictor.lattice_of(mould), lattice_channels(polygon, tethers, 2.0, box_side, 32, 1.7))
     assert not np.allclose(predictor.lattice_of(mould),
                            lattice_channels(polygon, tethers, 2.0, box_side, 32, SIGMA_L0))
-    # as written before the width was recorded: resuming to 2 epochs is not refused
+    # as written before the width was recorded: an interrupted run still resumes
+    with pytest.raises(Killed):
+        train(ds, TrainConfig(**PHYSICS, epochs=2), path, log=kill, resume=False)
     state = load_checkpoint(path)
     del state["data"]["sigma"]
     torch.save(state, path)
-    history = train(ds, TrainConfig(**PHYSICS, epochs=2), path, log=QUIET)
-    assert len(history) == 2
+    lines = []
+    history = train(ds, TrainConfig(**PHYSICS, epochs=2), path, log=lines.append)
+    assert len(history) == 2 and lines[0].startswith("resuming") and len(lines) == 2
     with pytest.raises(CheckpointMismatchError, match="data sigma: checkpoint 1.7 vs now"):
         train(physics_ds, TrainConfig(**PHYSICS, epochs=3), path, log=QUIET)
 
@@ -446,13 +458,6 @@ def test_checkerboard_measures_the_period_two_pattern():
 def test_cosine_schedule_resumes_bit_identically_and_ends_near_zero(physics_ds, tmp_path):
     cfg = TrainConfig(**PHYSICS, epochs=3, lr_schedule="cosine")
     train(physics_ds, cfg, tmp_path / "full.pt", log=QUIET)
-
-    class Killed(Exception):
-        pass
-
-    def kill(line):  # called after the epoch's checkpoint is written
-        raise Killed(line)
-
     with pytest.raises(Killed, match="epoch 1/3"):
         train(physics_ds, cfg, tmp_path / "resumed.pt", log=kill)
     train(physics_ds, cfg, tmp_path / "resumed.pt", log=QUIET)
@@ -472,7 +477,8 @@ def test_checkpoint_from_before_a_new_setting_resumes(physics_ds, tmp_path):
     """A checkpoint written before lr_schedule existed resumes under the setting's default and
     is refused under another value."""
     path = tmp_path / "old.pt"
-    train(physics_ds, TrainConfig(**PHYSICS, epochs=1), path, log=QUIET)
+    with pytest.raises(Killed):  # interrupted after epoch 1 of 2
+        train(physics_ds, TrainConfig(**PHYSICS, epochs=2), path, log=kill)
     state = load_checkpoint(path)
     del state["config"]["lr_schedule"]
     torch.save(state, path)

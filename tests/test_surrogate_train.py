@@ -101,15 +101,20 @@ def test_kill_and_resume_give_identical_weights(ds, tmp_path):
         train(ds, cfg, tmp_path / "resumed.pt", log=killed)
     assert load_checkpoint(tmp_path / "resumed.pt")["epoch"] == 1
     resumed = train(ds, cfg, tmp_path / "resumed.pt", log=QUIET)
-    # 1 epoch, then extend to 2 by changing only `epochs`.
-    train(ds, TrainConfig(**{**cfg.__dict__, "epochs": 1}), tmp_path / "extended.pt", log=QUIET)
-    train(ds, cfg, tmp_path / "extended.pt", log=QUIET)
-    a, state_a = _weights(tmp_path / "full.pt")
-    for other in ("resumed.pt", "extended.pt"):
+    # stop_after: a snapshot of the run, as if interrupted, that the next call resumes
+    assert len(train(ds, cfg, tmp_path / "snapshot.pt", log=QUIET, stop_after=1)) == 1
+    train(ds, cfg, tmp_path / "snapshot.pt", log=QUIET)
+    a, _ = _weights(tmp_path / "full.pt")
+    for other in ("resumed.pt", "snapshot.pt"):
         b, state_b = _weights(tmp_path / other)
         assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
         assert state_b["epoch"] == 2 and len(state_b["history"]) == 2
     assert [h["l1"] for h in resumed] == [h["l1"] for h in full]
+    # A finished run of 1 epoch is another run, not the first half of this one: `epochs` is
+    # part of what a checkpoint claims (under a cosine schedule, another schedule).
+    train(ds, TrainConfig(**{**cfg.__dict__, "epochs": 1}), tmp_path / "shorter.pt", log=QUIET)
+    with pytest.raises(CheckpointMismatchError, match="epochs: checkpoint 1 vs now 2"):
+        train(ds, cfg, tmp_path / "shorter.pt", log=QUIET)
     assert "d_loss" in full[0] and np.isfinite(full[-1]["d_loss"])
     assert not [p for p in tmp_path.iterdir() if ".tmp" in p.name]  # atomic writes cleaned up
 
@@ -138,3 +143,24 @@ def test_checkpoint_errors_name_file_and_mismatch(ds, tmp_path):
     (tmp_path / "junk.pt").write_bytes(b"not a checkpoint")
     with pytest.raises(CheckpointError, match="junk.pt"):
         predict(tmp_path / "junk.pt", np.zeros((2, 32, 32)))
+
+
+def test_changed_data_is_never_resumed(ds, tmp_path):
+    """Another value of any training or validation sample, with the same sample ids, is
+    other data: the checkpoint's fingerprint no longer matches (a stale model would be
+    published otherwise)."""
+    path = tmp_path / "m.pt"
+    cfg = TrainConfig(model="unet_l1", unet=TINY_UNET, epochs=1, seed=0)
+    train(ds, cfg, path, log=QUIET)
+    fingerprint = load_checkpoint(path)["data"]["fingerprint"]
+    assert len(fingerprint) == 64
+    train(ds.copy(deep=True), cfg, path, log=QUIET)  # the same data: resumes, nothing to do
+    train_idx, val_idx = usable_samples(ds, "train"), usable_samples(ds, "val")
+    for position, variable in ((train_idx[2], "fields"), (val_idx[0], "fields"),
+                               (train_idx[0], "inputs"), (train_idx[1], "n_cells")):
+        changed = ds.copy(deep=True)
+        changed[variable].values[position] = changed[variable].values[position] + 1
+        with pytest.raises(CheckpointMismatchError, match="m.pt.*training data changed"):
+            train(changed, cfg, path, log=QUIET)
+    history = train(changed, cfg, path, log=QUIET, resume=False)
+    assert len(history) == 1 and load_checkpoint(path)["data"]["fingerprint"] != fingerprint

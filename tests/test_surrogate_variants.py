@@ -1,8 +1,10 @@
 """Variant settings -> TrainConfig, the config's `surrogate:` section, and the workflow's
 train/evaluate entry points on a real-format store."""
 
+import numpy as np
 import pandas as pd
 import pytest
+import torch
 
 from condor.config import Config, ConfigError
 from condor.stages.surrogate import evaluate, evaluate_baselines, summarise, train, working_checkpoint
@@ -10,6 +12,7 @@ from condor.surrogate.checkpoint import load_checkpoint
 from condor.surrogate.models import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.variants import train_config, workflow_variants
+from condor.store import write_sample
 from test_cli_surrogate import write_store
 
 REPO_CONFIGS = ("config/config.yaml", "config/tiny.yaml", "config/paper.yaml")
@@ -86,6 +89,15 @@ def test_betas_reach_the_optimiser(store, tmp_path):
     assert state["config"]["betas"] == [0.9, 0.99]
 
 
+def _generator(path):
+    return load_checkpoint(path)["generator"]
+
+
+def _same_weights(a, b) -> bool:
+    a, b = _generator(a), _generator(b)
+    return a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+
+
 def test_train_variant_publishes_and_resumes(store, tmp_path):
     final = tmp_path / "models" / "v.pt"
     final.parent.mkdir()
@@ -93,16 +105,69 @@ def test_train_variant_publishes_and_resumes(store, tmp_path):
     history = train(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log_line=lines.append)
     assert len(history) == 2 and final.is_file() and working_checkpoint(final).is_file()
     assert pd.read_csv(tmp_path / "h.csv")["epoch"].tolist() == [1, 2]
-    # More epochs resume the working checkpoint: only epoch 3 runs.
+    # A job killed after epoch 1 of 3 resumes: only epochs 2 and 3 run.
+    cosine = {**SETTINGS, "epochs": 3, "lr_schedule": "cosine"}
+    with pytest.raises(KeyboardInterrupt):
+        train(store, cosine, final, threads=1, log_line=_killed_after_epoch_1)
     lines.clear()
-    train(store, {**SETTINGS, "epochs": 3}, final, threads=1, log_line=lines.append)
-    assert lines[0].startswith("resuming") and [line.split()[1] for line in lines[1:]] == ["3/3"]
+    train(store, cosine, final, threads=1, log_line=lines.append)
+    assert lines[0].startswith("resuming") and [line.split()[1] for line in lines[1:]] == ["2/3", "3/3"]
     assert load_checkpoint(final)["epoch"] == 3
+    train(store, cosine, tmp_path / "straight.pt", threads=1, log_line=lambda s: None)
+    assert _same_weights(final, tmp_path / "straight.pt")
     # Other settings discard the working checkpoint and start over.
     lines.clear()
     train(store, {**SETTINGS, "base": 4}, final, threads=1, log_line=lines.append)
-    assert lines[1].startswith("starting over") and len(lines) == 4
+    assert lines[0].startswith("training from scratch") and len(lines) == 3
     assert load_checkpoint(final)["generator_config"]["base"] == 4
+
+
+def _killed_after_epoch_1(line):
+    if line.startswith("epoch 1/"):
+        raise KeyboardInterrupt(line)
+
+
+@pytest.mark.parametrize("before, after", [(3, 1), (1, 3)])
+def test_changed_epochs_train_from_scratch(store, tmp_path, before, after):
+    """Fewer epochs never keep the longer model; more never continue a finished cosine
+    schedule: the published model is the one a fresh run of the new settings gives."""
+    settings = {**SETTINGS, "lr_schedule": "cosine"}
+    final = tmp_path / "v.pt"
+    train(store, {**settings, "epochs": before}, final, threads=1, log_line=lambda s: None)
+    lines = []
+    train(store, {**settings, "epochs": after}, final, threads=1, log_line=lines.append)
+    assert lines[0].startswith("training from scratch") and f"epochs: checkpoint {before}" in lines[0]
+    assert len(lines) == 1 + after
+    state = load_checkpoint(final)
+    assert state["epoch"] == after == state["config"]["epochs"] == len(state["history"])
+    train(store, {**settings, "epochs": after}, tmp_path / "fresh.pt", threads=1,
+          log_line=lambda s: None)
+    assert _same_weights(final, tmp_path / "fresh.pt")
+
+
+def test_changed_data_train_from_scratch(tmp_path):
+    """A store whose values changed (the same samples simulated again, another solver) is
+    never resumed: the published model is trained on, and records, the data read now."""
+    data = synthetic_dataset(16, 32, splits=("train",) * 6 + ("val", "test"))
+    path = tmp_path / "data.zarr"
+    write_store(path, data)
+    final = tmp_path / "models" / "v.pt"
+    train(store=path, settings=SETTINGS, checkpoint=final, threads=1, log_line=lambda s: None)
+    before = load_checkpoint(final)
+    train_sample = int(np.flatnonzero(data["split"].values == "train")[0])
+    fields = data["fields"].values[train_sample] * 1.5  # the sample simulated again
+    write_sample(path, train_sample, fields, {"sim_seed": 0, "n_cells": int(data["n_cells"].values[train_sample]),
+                                              "energy": 0.0, "max_force": 0.0, "solver": "synthetic",
+                                              "solver_seconds": 0.0, "hardware": "test"}, "ok")
+    lines = []
+    train(path, SETTINGS, final, threads=1, log_line=lines.append)
+    assert lines[0].startswith("training from scratch") and "training data changed" in lines[0]
+    after = load_checkpoint(final)
+    assert after["data"]["fingerprint"] != before["data"]["fingerprint"]
+    train(path, SETTINGS, tmp_path / "fresh.pt", threads=1, log_line=lambda s: None)
+    assert _same_weights(final, tmp_path / "fresh.pt")
+    assert not all(torch.equal(after["generator"][k], before["generator"][k])
+                   for k in before["generator"])
 
 
 def test_workflow_evaluation_files_and_summary(store, tmp_path):

@@ -5,6 +5,7 @@ that exists is overwritten without --force."""
 from __future__ import annotations
 
 import argparse
+import json
 import sys
 from pathlib import Path
 
@@ -180,6 +181,10 @@ def cmd_train(args) -> None:
     settings = {"model": args.model, "base": args.base, "depth": args.depth, "epochs": args.epochs,
                 "batch_size": args.batch_size, "lr": args.lr, "lam": args.lam, "seed": args.seed,
                 "prediction_mode": args.prediction_mode, "max_val_samples": args.max_val_samples}
+    checkpoint = Path(args.checkpoint)
+    if checkpoint.exists() and not checkpoint.is_dir() and not args.force:
+        raise CLIError(f"--checkpoint {str(checkpoint)!r} exists; pass --force to replace it "
+                       "(or choose another file)")
     print(f"training {args.model} on {args.store} into {args.checkpoint}", flush=True)
     history = train(args.store, settings, args.checkpoint, threads=args.threads,
                     device=args.device, fresh=args.fresh, restart_on_mismatch=False,
@@ -287,11 +292,22 @@ def _checkpoint_scene(predictor):
 
 
 def _refuse_dataset(path: Path) -> None:
-    """A prediction is never written over a dataset store, --force or not."""
+    """A prediction is never written over a dataset store, nor over a folder that is not a
+    prediction `predict` wrote (a Zarr store of its attributes), --force or not."""
+    if not path.is_dir():
+        return
     meta = path / "zarr.json"
-    if meta.is_file() and FORMAT in meta.read_text(errors="replace"):
+    text = meta.read_text(errors="replace") if meta.is_file() else ""
+    if FORMAT in text:
         raise CLIError(f"--out {str(path)!r} is a condor dataset store; a prediction never "
                        "replaces one (choose another path)")
+    try:
+        attributes = json.loads(text).get("attributes", {})
+    except (ValueError, AttributeError):
+        attributes = {}
+    if not {"checkpoint", "n_cells"} <= set(attributes):
+        raise CLIError(f"--out {str(path)!r} is a folder that condor predict did not write; "
+                       "--force replaces only a prediction (choose another path)")
 
 
 # --- the parser ---------------------------------------------------------------------------------
@@ -340,10 +356,12 @@ def build_parser() -> argparse.ArgumentParser:
                    "damaged ones aside, to <store>.damaged/, for the next run to rebuild")
     p.set_defaults(func=cmd_check_store)
 
-    p = sub.add_parser("train", help="train a surrogate on a dataset store (resumes its epochs)")
+    p = sub.add_parser("train", help="train a surrogate on a dataset store (an interrupted run "
+                       "resumes)")
     p.add_argument("--store", required=True, help="dataset store (.zarr) from the workflow")
-    p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt); training resumes "
-                   "from .NAME.training.pt beside it")
+    p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt) to write; an "
+                   "interrupted run of the same settings and data resumes from "
+                   ".NAME.training.pt beside it")
     p.add_argument("--model", default="unet_l1", choices=MODEL_KINDS,
                    help="pix2pix (the paper's, 256 px), unet_gan, unet_l1 or unet (default: %(default)s)")
     p.add_argument("--epochs", type=_positive_int, default=None, help="epochs in all (default 10)")
@@ -359,8 +377,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-val-samples", type=_positive_int, default=None,
                    help="validate on at most this many samples (default: all)")
     p.add_argument("--threads", type=_positive_int, default=None, help="torch CPU threads (default 1)")
-    p.add_argument("--fresh", action="store_true", help="discard earlier epochs and start over")
+    p.add_argument("--fresh", action="store_true", help="discard the epochs of an interrupted "
+                   "run and start over")
     _device_arg(p)
+    _force_arg(p)
     p.set_defaults(func=cmd_train)
 
     p = sub.add_parser("evaluate", help="test-split metrics, figures and baselines of a checkpoint")
@@ -421,12 +441,20 @@ def main(argv: list[str] | None = None) -> None:
     try:
         args.func(args)
     except CLIError as err:
-        print(f"condor {args.command}: error: {err}", file=sys.stderr)
-        sys.exit(2)
+        _fail(args, err)
+    except PermissionError as err:  # a read-only output folder, most often
+        where = f": {str(err.filename)!r}" if err.filename else f" ({err})"
+        _fail(args, f"permission denied{where} (is the folder read-only?)")
     except (ValueError, OSError, RuntimeError) as err:
         # Library errors name the bad value; print them as one line, not a traceback.
-        print(f"condor {args.command}: error: {err}", file=sys.stderr)
-        sys.exit(2)
+        _fail(args, err)
+
+
+def _fail(args, message) -> None:
+    """Print `message` as one line (a library's may span several) and exit with status 2."""
+    text = " ".join(line.strip() for line in str(message).splitlines() if line.strip())
+    print(f"condor {args.command}: error: {text}", file=sys.stderr)
+    sys.exit(2)
 
 
 if __name__ == "__main__":

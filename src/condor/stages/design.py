@@ -10,11 +10,17 @@ simulation with replicas, and hand over drawings (condor.design, docs/design.md)
   (drawings with dimensions in l0 and, given `l0_um`, in mm), for the best `n_top` designs;
 - predictions.zarr: their predicted fields (raw, normalised) and reproducibility maps;
 - your_moulds.csv: a user's own moulds, predicted and simulated the same way, when given;
-- figures/: predicted against simulated objective, the search's progress, the designs.
+- figures/: predicted against simulated objective, the search's progress, the designs;
+- condor_design.json: design's mark, naming the command and every file it writes.
+
+`force` replaces only such a folder, and only the files its mark names: a Zarr store, a
+results folder of the workflow, the current directory or one above it, and a folder holding
+any file design did not write are refused, and nothing in them is touched.
 """
 
 from __future__ import annotations
 
+import json
 import logging
 import shutil
 from dataclasses import replace
@@ -29,6 +35,7 @@ from condor.design import (confirm, dataset_baseline, default_space, design_tabl
                            parse_objective, predict_designs, search, simulate_designs)
 from condor.drawings import write_dxf, write_svg
 from condor.fields import FIELD_NAMES
+from condor.folder import LOCK_NAME, store_path
 from condor.lattice import build_lattice
 from condor.moulds import save_json
 from condor.scenes import Scene
@@ -39,18 +46,97 @@ log = logging.getLogger("condor")
 YOUR_MOULD_IDS = 10**6  # mould ids (hence replica seeds) of a user's moulds: none of the search's
 
 
+MARK = "condor_design.json"  # what design writes first into its folder: the files it owns
+WRITER = "condor design"
+FIGURES = ("confirmation.png", "search_history.png", "designs.png")
+
+
 class DesignOutputError(ValueError):
     """The design's output folder cannot be written as asked."""
 
 
-def _out_dir(out_dir, force: bool) -> Path:
+def own_files(n_top: int) -> list[str]:
+    """Every path (relative to the folder) that design writes with `n_top` designs, besides
+    its mark; predictions.zarr is a folder."""
+    return ["designs.csv", "summary.csv", "search_history.csv", "your_moulds.csv",
+            "predictions.zarr",
+            *(f"design_{k:02d}.{ext}" for k in range(1, n_top + 1) for ext in ("json", "svg", "dxf")),
+            *(f"figures/{name}" for name in FIGURES)]
+
+
+def _files(folder: Path) -> list[str]:
+    """The files under `folder` (relative paths; predictions.zarr and symbolic links as one
+    entry each, never followed); empty folders are not listed."""
+    found = []
+    for entry in sorted(folder.iterdir()):
+        if entry.is_dir() and not entry.is_symlink() and entry.name != "predictions.zarr":
+            found += [f"{entry.name}/{name}" for name in _files(entry)]
+        else:
+            found.append(entry.name)
+    return found
+
+
+def _owned(out_dir: Path) -> list[str] | None:
+    """The files design's mark in `out_dir` names, None without a readable mark."""
+    try:
+        mark = json.loads((out_dir / MARK).read_text())
+    except (OSError, ValueError):
+        return None
+    if not isinstance(mark, dict) or mark.get("written_by") != WRITER:
+        return None
+    return [str(name) for name in mark.get("files", [])]
+
+
+def _not_replaceable(out_dir: Path, files: list[str]) -> str | None:
+    """Why design may not replace the folder `out_dir` holding `files`, or None."""
+    here, where = Path.cwd().resolve(), out_dir.resolve()
+    if where == here:
+        return "is the current directory"
+    if where in here.parents:
+        return "is a folder above the current directory"
+    if any((out_dir / name).exists() for name in ("zarr.json", ".zgroup", ".zarray")):
+        return "is a Zarr store"
+    if any((out_dir / name).exists() for name in (LOCK_NAME, "dataset.json")) or \
+            store_path(out_dir).exists():
+        return "is a results folder of the workflow"
+    owned = _owned(out_dir)
+    if owned is None:
+        return f"holds files that {WRITER} did not write (it has no {MARK}): {_some(files)}"
+    foreign = [name for name in files if name != MARK and name not in owned]
+    if foreign:
+        return f"holds files that {WRITER} did not write: {_some(foreign)}"
+    return None
+
+
+def _some(names: list[str], n: int = 3) -> str:
+    return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
+
+
+def _out_dir(out_dir, force: bool, n_top: int) -> Path:
+    """The output folder, ready: created, or emptied of an earlier design's files with
+    `force` (only those its mark names; anything else refuses, module docstring); then
+    marked with the files this run writes."""
     out_dir = Path(out_dir)
-    if out_dir.exists() and any(out_dir.iterdir()):
+    if out_dir.exists() and not out_dir.is_dir():
+        raise DesignOutputError(f"--out {str(out_dir)!r} is a file; give a folder")
+    files = _files(out_dir) if out_dir.is_dir() else []
+    if files:
+        reason = _not_replaceable(out_dir, files)
+        if reason:
+            raise DesignOutputError(f"--out {str(out_dir)!r} {reason}; design replaces only "
+                                    "a folder it wrote itself: choose another --out")
         if not force:
-            raise DesignOutputError(f"--out {str(out_dir)!r} holds files; pass --force to "
-                                    "replace them")
-        shutil.rmtree(out_dir)
+            raise DesignOutputError(f"--out {str(out_dir)!r} holds an earlier design; pass "
+                                    "--force to replace it")
+        for name in [*_owned(out_dir), MARK]:
+            path = out_dir / name
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            elif path.exists() or path.is_symlink():
+                path.unlink()
     (out_dir / "figures").mkdir(parents=True, exist_ok=True)
+    (out_dir / MARK).write_text(json.dumps({"written_by": WRITER, "files": own_files(n_top)},
+                                           indent=1) + "\n")
     return out_dir
 
 
@@ -69,7 +155,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, budget: int = 2000
                                 f"px of box {predictor.box} l0, not the {scene.name!r} scene")
     parsed = parse_objective(objective, pixels=scene.pixels, max_extent=scene.max_extent)
     space = default_space(scene, parsed)
-    out = _out_dir(out_dir, force)
+    out = _out_dir(out_dir, force, n_top)
     if your_moulds:
         _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas, seed, solver,
                            progress).to_csv(out / "your_moulds.csv", index=False)

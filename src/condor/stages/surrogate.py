@@ -3,7 +3,11 @@
 Training resumes the same way from the workflow and from `condor train`: epochs are written
 to a working checkpoint beside the final one (`.NAME.training.pt`, not a Snakemake output,
 so a killed job's progress survives `--rerun-incomplete`), and the final checkpoint is
-published atomically when training ends.
+published atomically when training ends. Only an interrupted run of the same settings and
+the same data resumes: the working checkpoint records the whole config and the fingerprint
+of the data it read (condor.surrogate.train), so changed data or any changed setting
+(`epochs` included) trains from scratch, and the published model always claims the config
+and data it was trained with.
 """
 
 from __future__ import annotations
@@ -11,6 +15,7 @@ from __future__ import annotations
 import logging
 import os
 import shutil
+import tempfile
 from pathlib import Path
 
 import pandas as pd
@@ -35,12 +40,17 @@ def working_checkpoint(checkpoint) -> Path:
 
 
 def check_checkpoint_path(checkpoint) -> Path:
-    """ValueError when `checkpoint` cannot be a checkpoint file (a directory, a folder that
-    does not exist)."""
+    """ValueError when `checkpoint` cannot be a checkpoint file (a directory), PermissionError
+    when its folder cannot be written: before any epoch is spent."""
     checkpoint = Path(checkpoint)
     if checkpoint.is_dir():
         raise ValueError(f"checkpoint path {str(checkpoint)!r} is a directory; give a file "
                          "name such as model.pt")
+    checkpoint.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        tempfile.TemporaryFile(dir=checkpoint.parent).close()
+    except PermissionError as err:
+        raise PermissionError(err.errno, err.strerror, str(checkpoint.parent)) from err
     return checkpoint
 
 
@@ -48,10 +58,12 @@ def train(store, settings: dict, checkpoint, history_csv=None, threads: int | No
           device=None, fresh: bool = False, restart_on_mismatch: bool = True,
           log_line=log.info) -> list[dict]:
     """Train a variant (flat `settings`, condor.surrogate.variants) on the dataset `store`,
-    resuming its working checkpoint, then publish `checkpoint` and the per-epoch history CSV.
-    A working checkpoint of other settings or data starts over (said in the log) with
-    `restart_on_mismatch` (the workflow: its params changed), else CheckpointMismatchError
-    (the CLI, unless `fresh`, which always starts over)."""
+    resuming its working checkpoint when that is an interrupted run of the same settings and
+    data, then publish `checkpoint` and the per-epoch history CSV. A working checkpoint of
+    other settings (`epochs` included) or other data is discarded and training starts from
+    scratch, said in one log line: always with `restart_on_mismatch` (the workflow), else
+    (the CLI) when it is finished, a copy of what was published; an interrupted one raises
+    CheckpointMismatchError there, unless `fresh`, which always starts over."""
     checkpoint = check_checkpoint_path(checkpoint)
     if device is not None:
         check_device(device, "--device")
@@ -63,22 +75,25 @@ def train(store, settings: dict, checkpoint, history_csv=None, threads: int | No
     work = working_checkpoint(checkpoint)
     if fresh:
         work.unlink(missing_ok=True)
-    if work.exists():
-        log_line(f"resuming from {work}")
     try:
         history = train_loop(ds, cfg, work, device=device, log=log_line)
     except CheckpointMismatchError as err:
-        if not restart_on_mismatch:
+        if not (restart_on_mismatch or _finished(work)):
             raise CheckpointMismatchError(f"{err} (pass --fresh to start over)") from err
-        log_line(f"starting over: {err}")
+        log_line(f"training from scratch: {err}")
         history = train_loop(ds, cfg, work, device=device, log=log_line, resume=False)
     tmp = checkpoint.with_name(f".{checkpoint.name}.publish")
-    checkpoint.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(work, tmp)
     os.replace(tmp, checkpoint)
     if history_csv is not None:
         pd.DataFrame(history).to_csv(history_csv, index=False)
     return history
+
+
+def _finished(work: Path) -> bool:
+    """Whether a working checkpoint ran all the epochs of its own config."""
+    state = load_checkpoint(work)
+    return state["epoch"] >= state["config"].get("epochs", 0)
 
 
 def check_same_grid(state: dict, ds, checkpoint, store) -> None:

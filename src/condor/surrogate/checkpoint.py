@@ -3,6 +3,7 @@ written atomically, and the errors that name a missing or mismatched file."""
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -32,7 +33,14 @@ def save_checkpoint(state: dict, path) -> None:
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    torch.save({"format": FORMAT, **state}, tmp)
+    try:
+        torch.save({"format": FORMAT, **state}, tmp)
+    except RuntimeError as err:  # torch's writer names neither the file nor, plainly, the cause
+        with contextlib.suppress(OSError):
+            tmp.unlink(missing_ok=True)
+        cause = "permission denied" if "Permission denied" in str(err) else \
+            str(err).strip().splitlines()[0]
+        raise OSError(f"cannot write checkpoint {str(path)!r}: {cause}") from err
     os.replace(tmp, path)
 
 
@@ -45,8 +53,13 @@ def load_checkpoint(path, map_location="cpu") -> dict:
                                       "(train a model first)")
     try:
         state = torch.load(path, map_location=map_location, weights_only=True)
-    except Exception as err:  # torch raises several types for a corrupt file
-        raise CheckpointError(f"cannot read surrogate checkpoint {str(path)!r}: {err}") from err
+    except Exception as err:  # torch raises several types, with pages of advice, for any file
+        if isinstance(err, OSError):  # unreadable (permissions), not foreign
+            raise CheckpointError(f"cannot read surrogate checkpoint {str(path)!r}: "
+                                  f"{err.strerror or err}") from err
+        raise CheckpointError(f"{str(path)!r} is not a surrogate checkpoint written by `condor "
+                              f"train` (or it is truncated): torch cannot load it "
+                              f"({type(err).__name__})") from err
     if not isinstance(state, dict) or state.get("format") != FORMAT:
         raise CheckpointError(f"{str(path)!r} is not a {FORMAT} checkpoint")
     missing = {"generator", "generator_config", "scaling", "data", "config"} - set(state)

@@ -9,6 +9,7 @@ enough to hold in memory.
 
 from __future__ import annotations
 
+import hashlib
 from dataclasses import dataclass
 
 import numpy as np
@@ -330,6 +331,54 @@ def compute_scaling(ds, indices: np.ndarray, size: int | None = None, chunk: int
 
 # --- samples -------------------------------------------------------------------------------
 
+def read_samples(ds, positions, read):
+    """read(ds.isel(sample=positions)); DataError naming the unreadable samples when a chunk
+    cannot be read."""
+    try:
+        return read(ds.isel(sample=positions))
+    except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
+        bad = [p for p in np.atleast_1d(positions) if not _readable(ds, p)]
+        raise DataError(f"cannot read sample(s) {_named(ds, bad or positions)} of the "
+                        f"dataset ({type(err).__name__}: {str(err)[:200]}); condor "
+                        "check-store --deep lists the corrupt samples") from None
+
+
+def data_fingerprint(ds, selections: dict, kind: str = "mask", replica_mean: bool = False,
+                     chunk: int = 16) -> str:
+    """sha256 (hex) of what training reads of `ds`: for each named selection ({"train":
+    positions, "val": positions}) its sample ids and, `chunk` samples at a time, the bytes,
+    dtype and shape of the store variables a model of inputs `kind` reads, the fields and N_c;
+    with `replica_mean`, the replica means of the training moulds. Any changed value, sample
+    or split gives another fingerprint."""
+    check_input_variables(ds, kind)
+    names = [DERIVED_INPUTS.get(name, name) for name in INPUT_VARIABLES[kind]]
+    names = [name for name in dict.fromkeys([*names, "fields", "n_cells"]) if name in ds]
+    digest = hashlib.sha256()
+
+    def add(label: str, values) -> None:
+        a = np.ascontiguousarray(values)
+        if a.dtype == object:  # the bytes of an object array are addresses, not values
+            a = a.astype(str)
+        digest.update(f"{label} {a.dtype.str} {a.shape};".encode())
+        digest.update(a.tobytes())
+
+    for role, positions in selections.items():
+        positions = np.asarray(positions, dtype=np.int64)
+        add(f"{role} sample", ds["sample"].values[positions] if "sample" in ds.coords else positions)
+        for start in range(0, len(positions), chunk):
+            part = positions[start:start + chunk]
+            for name, values in zip(names, read_samples(
+                    ds, part, lambda sel: [np.asarray(sel[n].values) for n in names])):
+                add(f"{role} {name}", values)
+    if replica_mean and "fields_mean" in ds and "train" in selections:
+        moulds = set(np.asarray(ds["mould"].values)[np.asarray(selections["train"])].tolist())
+        rows = [k for k, m in enumerate(np.asarray(ds["replicated"].values)) if int(m) in moulds]
+        for name in ("replicated", "n_replicas_ok"):
+            add(name, np.asarray(ds[name].values)[rows])
+        add("fields_mean", ds["fields_mean"].isel(replicated=rows).values)
+    return digest.hexdigest()
+
+
 class SampleSource:
     """Model-ready samples: inputs (2, S, S) float32 (the masks, or the lattice channels:
     `inputs`, a TrainConfig.inputs kind) and scaled fields (8, S, S) float32 at the model
@@ -377,15 +426,9 @@ class SampleSource:
         return self._native_inputs
 
     def _read(self, positions: np.ndarray):
-        try:
-            sel = self.ds.isel(sample=positions)
-            raw_inputs = _input_arrays(sel, self.inputs)
-            fields = np.asarray(sel["fields"].values, dtype=np.float32)
-        except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
-            bad = [p for p in np.atleast_1d(positions) if not _readable(self.ds, p)]
-            raise DataError(f"cannot read sample(s) {_named(self.ds, bad or positions)} of the "
-                            f"dataset ({type(err).__name__}: {str(err)[:200]}); condor "
-                            "check-store --deep lists the corrupt samples") from None
+        raw_inputs, fields = read_samples(
+            self.ds, positions, lambda sel: (_input_arrays(sel, self.inputs),
+                                             np.asarray(sel["fields"].values, dtype=np.float32)))
         if self.mean_row:
             moulds = np.atleast_1d(np.asarray(self.ds["mould"].values)[positions])
             for row, mould in enumerate(moulds):

@@ -2,15 +2,17 @@
 objective, or a U-Net trained on a pixel loss alone ("unet_l1"; "unet" with `loss` l1, mse, or
 gaussian with the physics head of condor.surrogate.physics).
 
-Checkpoint = one dict written atomically at the end of every epoch; `train` resumes from it.
-On CPU with a fixed seed the run is deterministic, and 1 epoch + resume 1 epoch gives the same
-weights as 2 epochs: the data order and the torch RNG (dropout) are re-seeded from
+Checkpoint = one dict written atomically at the end of every epoch; `train` resumes from it
+an interrupted run of the same config and data: the whole config but `num_threads` (epochs
+included: another count is another schedule) and a sha256 fingerprint of the data it reads
+(`data_fingerprint`) must match, else CheckpointMismatchError. On CPU with a fixed seed the
+run is deterministic, and a run killed after epoch 1 of 2 and resumed gives the same weights
+as 2 epochs straight: the data order and the torch RNG (dropout) are re-seeded from
 (seed, epoch) at the start of every epoch, so nothing but the checkpoint carries state.
 """
 
 from __future__ import annotations
 
-import hashlib
 import math
 import time
 from contextlib import contextmanager
@@ -26,8 +28,9 @@ from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
 from condor.inputs import INPUT_KINDS
 
 from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
-                   apply_symmetry, check_dataset, compute_scaling, dataset_pixel_size,
-                   INPUT_VARIABLES, model_inputs, n_input_channels, usable_samples)
+                   apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
+                   dataset_pixel_size, INPUT_VARIABLES, model_inputs, n_input_channels,
+                   usable_samples)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
@@ -44,9 +47,10 @@ REPLICA_USES = ("first", "all", "mean")
 # Learning rate over the run: constant, or a cosine from lr down to 0 at the last epoch (the
 # final weights then settle instead of drifting with Adam's step; docs/surrogate.md).
 LR_SCHEDULES = ("constant", "cosine")
-# Config keys that may change between a run and its resumption.
-RESUMABLE_KEYS = {"epochs", "val_every", "max_val_samples", "num_threads", "prediction_mode",
-                  "symmetrise"}
+# Config keys that may change between a run and its resumption: resources only. Every
+# training setting, `epochs` included, is part of what a checkpoint claims; another value is
+# another run (resuming is for an interrupted run of the identical config and data).
+RESUMABLE_KEYS = {"num_threads"}
 
 
 @dataclass
@@ -250,9 +254,12 @@ def augment_batch(x: torch.Tensor, y: torch.Tensor, choices,
 ADDED_DATA_KEYS = ("sigma",)  # data signature keys that older checkpoints lack
 
 
-def _data_signature(ds, train_idx: np.ndarray) -> dict:
-    ids = ds["sample"].values[train_idx] if "sample" in ds.coords else train_idx
-    digest = hashlib.sha1(np.asarray(ids).astype(str).tobytes()).hexdigest()[:16]
+def _data_signature(ds, train_idx: np.ndarray, val_idx: np.ndarray, cfg: TrainConfig) -> dict:
+    """What a checkpoint records of its data: the grid and kernel (prediction checks and
+    reuses them), the training set's size and the fingerprint of every value training reads
+    (data_fingerprint: the training and validation samples)."""
+    fingerprint = data_fingerprint(ds, {"train": train_idx, "val": val_idx}, cfg.inputs,
+                                   replica_mean=cfg.replicas == "mean")
     try:  # recorded so that prediction can check a mould's box against the training grid
         pixel_size = dataset_pixel_size(ds)
     except ValueError:
@@ -266,7 +273,7 @@ def _data_signature(ds, train_idx: np.ndarray) -> dict:
     return {"native_size": int(ds.sizes["x"]), "pixel_size": pixel_size, "depth": depth,
             "sigma": None if sigma is None else float(sigma),
             "field_names": list(FIELD_NAMES), "channel_names": list(CHANNEL_NAMES),
-            "n_train": int(len(train_idx)), "train_ids_sha1": digest}
+            "n_train": int(len(train_idx)), "fingerprint": fingerprint}
 
 
 def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
@@ -280,7 +287,9 @@ def _check_resumable(state: dict, cfg: TrainConfig, data: dict, path) -> None:
     # a data key added after the checkpoint was written (ADDED_DATA_KEYS) is not compared
     recorded = {k: state["data"].get(k, v if k in ADDED_DATA_KEYS else None)
                 for k, v in data.items()}
-    diffs += [f"data {k}: checkpoint {recorded[k]!r} vs now {v!r}"
+    diffs += [f"the training data changed (fingerprint {str(recorded[k])[:12]} in the "
+              f"checkpoint, {v[:12]} now)" if k == "fingerprint" else
+              f"data {k}: checkpoint {recorded[k]!r} vs now {v!r}"
               for k, v in data.items() if recorded[k] != v]
     if diffs:
         raise CheckpointMismatchError(f"cannot resume from {str(path)!r}; it was written for a "
@@ -376,12 +385,15 @@ def _build(cfg: TrainConfig, native: int, device):
 
 
 def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
-          resume: bool = True) -> list[dict]:
+          resume: bool = True, stop_after: int | None = None) -> list[dict]:
     """Train on the "train" split of `dataset` (an xarray.Dataset), validating on "val".
 
     Writes `checkpoint_path` after every epoch; if it exists (and `resume`), continues from it
-    (CheckpointMismatchError if it belongs to a different config or training set). Calls
-    `log(str)` once per epoch. Returns the history: one dict per epoch with l1, g_loss,
+    (CheckpointMismatchError if it belongs to another config, `epochs` included, or other
+    data: `_check_resumable`). Calls
+    `log(str)` once per epoch (and once on resuming). `stop_after`: stop after that many
+    epochs of the run, as if interrupted (a snapshot of the run, which the next call resumes).
+    Returns the history: one dict per epoch with l1, g_loss,
     d_loss (GAN kinds), val_mae (physical units; None when not validated) and seconds."""
     check_dataset(dataset)
     device = default_device(device)
@@ -390,7 +402,7 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
     if len(train_idx) == 0:
         raise ValueError("dataset has no usable ('ok') samples in the 'train' split")
     val_idx = usable_samples(dataset, "val")[:cfg.max_val_samples]
-    data = _data_signature(dataset, train_idx)
+    data = _data_signature(dataset, train_idx, val_idx, cfg)
     path = Path(checkpoint_path)
     with _torch_settings(cfg):
         G, D, opt_g, opt_d = _build(cfg, native, device)
@@ -403,12 +415,13 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
                 D.load_state_dict(discriminator_from_checkpoint(state, path).state_dict())
                 opt_d.load_state_dict(state["opt_d"])
             scaling, history, start = scaling_from_checkpoint(state), list(state["history"]), state["epoch"]
+            log(f"resuming from {path} after epoch {start} of {cfg.epochs}")
         else:
             scaling, history, start = output_map(cfg, dataset, train_idx, G.cfg.size), [], 0
         train_src = SampleSource(dataset, train_idx, scaling, G.cfg.size,
                                  replica_mean=cfg.replicas == "mean", inputs=cfg.inputs)
         val_src = SampleSource(dataset, val_idx, None, native, preload=False, inputs=cfg.inputs)
-        for epoch in range(start, cfg.epochs):
+        for epoch in range(start, min(cfg.epochs, stop_after or cfg.epochs)):
             t0 = time.perf_counter()
             torch.manual_seed(_epoch_seed(cfg.seed, epoch))
             for opt in (opt_g, opt_d):
