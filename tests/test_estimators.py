@@ -199,3 +199,14 @@ def test_padding_must_be_whole_missing_replicas_at_the_end():
     reps[1, 1:] = np.nan
     with pytest.raises(ValueError, match="at least 2 replicas per mould, got 1"):
         est.as_replicas(reps)
+
+
+def test_pad_replicas_keeps_each_moulds_own_and_pads_with_nan():
+    from condor.estimators import pad_replicas
+    a = [np.ones((2, 3)), 2 * np.ones((2, 3))]
+    b = [3 * np.ones((2, 3))]
+    out = pad_replicas([a, b])
+    assert out.shape == (2, 2, 2, 3)
+    assert np.array_equal(out[0, 1], a[1]) and np.array_equal(out[1, 0], b[0])
+    assert np.isnan(out[1, 1]).all()
+    assert list(est.replica_counts(out)) == [2, 1]

@@ -32,6 +32,7 @@ from condor import anneal as anneal_mod  # noqa: E402
 from condor.energy import random_orientations  # noqa: E402
 from condor.fields import cell_fields, normalise  # noqa: E402
 from condor.lattice import build_lattice  # noqa: E402
+from condor.estimators import pad_replicas  # noqa: E402
 from condor.scenes import get_scene  # noqa: E402
 from condor.seeds import replica_seed  # noqa: E402
 from condor.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
@@ -104,15 +105,6 @@ def reference(scene, seed: int, moulds, budget: float, runs: int):
     return fields, energy
 
 
-def pad(lists):
-    r = max(len(x) for x in lists)
-    shape = np.shape(lists[0][0])
-    out = np.full((len(lists), r) + shape, np.nan)
-    for i, x in enumerate(lists):
-        out[i, :len(x)] = x
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="default")
@@ -155,10 +147,11 @@ def main(argv=None) -> int:
             if len(keep) < 2:
                 continue
             row = fidelity_row(spec, scene.name, f"anneal {budget_tag(budget)}",
-                               pad([fields[i] for i in keep]), pad([rf[i] for i in keep]),
-                               evaluations=pad([evals[i] for i in keep]),
-                               energy=pad([energy[i] for i in keep]),
-                               ref_energy=pad([re[i] for i in keep]))
+                               pad_replicas([fields[i] for i in keep]),
+                               pad_replicas([rf[i] for i in keep]),
+                               evaluations=pad_replicas([evals[i] for i in keep]),
+                               energy=pad_replicas([energy[i] for i in keep]),
+                               ref_energy=pad_replicas([re[i] for i in keep]))
             rows.append(row)
             print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in row.items()), flush=True)

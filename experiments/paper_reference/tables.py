@@ -23,6 +23,7 @@ import pandas as pd
 
 from condor.anneal import KERNEL
 from condor.fields import cell_fields, normalise
+from condor.estimators import pad_replicas
 from condor.scenes import get_scene
 from condor.simulate import SimResult
 from condor.studies.fidelity import fidelity_row
@@ -46,14 +47,6 @@ def rung(scene, seed, mould, budget, runs):
     return fields, energy
 
 
-def pad(lists):
-    r = max(len(x) for x in lists)
-    out = np.full((len(lists), r) + np.shape(lists[0][0]), np.nan)
-    for i, x in enumerate(lists):
-        out[i, :len(x)] = x
-    return out
-
-
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="default")
@@ -75,10 +68,10 @@ def main(argv=None) -> int:
             continue
         row = fidelity_row(f"anneal {budget_tag(lower)}", scene.name,
                            f"anneal {budget_tag(upper)}",
-                           pad([data[lower][i][0] for i in keep]),
-                           pad([data[upper][i][0] for i in keep]),
-                           energy=pad([data[lower][i][1] for i in keep]),
-                           ref_energy=pad([data[upper][i][1] for i in keep]))
+                           pad_replicas([data[lower][i][0] for i in keep]),
+                           pad_replicas([data[upper][i][0] for i in keep]),
+                           energy=pad_replicas([data[lower][i][1] for i in keep]),
+                           ref_energy=pad_replicas([data[upper][i][1] for i in keep]))
         row["moulds"] = " ".join(str(a.moulds[i]) for i in keep)
         rows.append(row)
         print(row)

@@ -66,6 +66,16 @@ def as_replicas(replicas, min_replicas: int = 2) -> np.ndarray:
     return array
 
 
+def pad_replicas(per_mould) -> np.ndarray:
+    """Replicas of unequal count, one sequence of arrays per mould (each with at least one), as
+    one (M, R, ...) float64 array NaN-padded to the largest count: the estimators' layout."""
+    width = max(len(replicas) for replicas in per_mould)
+    out = np.full((len(per_mould), width) + np.shape(per_mould[0][0]), np.nan)
+    for m, replicas in enumerate(per_mould):
+        out[m, :len(replicas)] = replicas
+    return out
+
+
 def replica_counts(replicas) -> np.ndarray:
     """Replicas each mould holds (M,) int: R, or fewer where NaN-padded."""
     return _counts(as_replicas(replicas, 1))
