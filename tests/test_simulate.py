@@ -163,7 +163,7 @@ def test_every_result_reports_its_residual_force_and_cost():
     assert default.solver == DEFAULT_SOLVER
     assert default.info["max_force"] <= DEFAULT_FTOL[DEFAULT_SOLVER]
     # the relaxed anneal's cost: its trials' bonds, its relaxations and the final L-BFGS
-    info = default.info
+    info = simulate(SQUARE, TWO_POSTS, 2.0, "relaxed_anneal", seed=1).info
     assert info["evaluations"] == pytest.approx(info["anneal_bonds_evaluated"] / lat.n_bonds
                                                 + info["relax_evaluations"]
                                                 + info["min_evaluations"])

@@ -25,6 +25,7 @@ from condor import plots
 from condor.config import Config
 from condor.stability import run_cases
 from condor.moulds import input_channels
+from condor.simulate import FAITHFUL_SOLVER
 from condor.stages.dataset import load_moulds
 from condor.store import open_store
 from condor.studies import accuracy as accuracy_study
@@ -229,12 +230,14 @@ def stability(config: Config, out_csv) -> pd.DataFrame:
 
 
 def fidelity(config: Config, checkpoints: dict, out_csv) -> pd.DataFrame:
-    """The dataset's solver, and the L-BFGS quench beside it, against the paper reference of
+    """The dataset's solver, and beside it the faithful solver (simulate.FAITHFUL_SOLVER) and
+    the L-BFGS quench, against the paper reference of
     the config's scene and seed (`simulation.replicas.test` seeds a mould); then each surrogate
     of `checkpoints` ({variant: path}) on the reference moulds it did not train on. The
     columns only when the product holds no reference of them."""
     solver, budget = config.solver()
-    solvers = [(solver, budget)] + ([("lbfgs", None)] if solver != "lbfgs" else [])
+    solvers = [(solver, budget)] + [(other, None) for other in (FAITHFUL_SOLVER, "lbfgs")
+                                    if other != solver]
     table = fidelity_table(config.scene, config.seed, solvers,
                            int(config.simulation["replicas"]["test"]), log=log.info)
     reference = reference_ensemble(config.scene, config.seed)
