@@ -30,7 +30,7 @@ from condor.stages.dataset import load_moulds
 from condor.store import open_store
 from condor.studies import accuracy as accuracy_study
 from condor.studies.convergence import convergence as convergence_study
-from condor.studies.fidelity import fidelity_table, prediction_row, reference_ensemble
+from condor.studies.fidelity import fidelity_table, paper_ensemble, prediction_row
 from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
 from condor.studies.reference import reference_ensemble
@@ -240,7 +240,7 @@ def fidelity(config: Config, checkpoints: dict, out_csv) -> pd.DataFrame:
                                     if other != solver]
     table = fidelity_table(config.scene, config.seed, solvers,
                            int(config.simulation["replicas"]["test"]), log=log.info)
-    reference = reference_ensemble(config.scene, config.seed)
+    reference = paper_ensemble(config.scene, config.seed)
     if reference is not None:
         moulds, ref_fields, _, label = reference
         splits = config.splits()

@@ -97,7 +97,7 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
     return fields, energy, evaluations
 
 
-def reference_ensemble(scene, dataset_seed: int, folder=None):
+def paper_ensemble(scene, dataset_seed: int, folder=None):
     """The paper reference the product ships for this scene and seed, at its top rung:
     (mould ids, normalised fields (M, R, 8, H, W), energies per cell (M, R), label such as
     'anneal 1e5'), NaN-padded; None when there is none (or the scene is not the preset the
@@ -128,9 +128,9 @@ def reference_ensemble(scene, dataset_seed: int, folder=None):
 def fidelity_table(scene, dataset_seed: int, solvers, replicas: int, folder=None,
                    log=None) -> pd.DataFrame:
     """Each (solver, budget) of `solvers` against the paper reference the product ships for
-    this scene and seed (`reference_ensemble`): FIDELITY_COLUMNS and the differences of
+    this scene and seed (`paper_ensemble`): FIDELITY_COLUMNS and the differences of
     `fidelity_row`. Empty (the columns only) when no reference exists."""
-    reference = reference_ensemble(scene, dataset_seed, folder)
+    reference = paper_ensemble(scene, dataset_seed, folder)
     if reference is None:
         return pd.DataFrame(columns=list(FIDELITY_COLUMNS))
     moulds, ref_fields, ref_energy, label = reference
