@@ -337,6 +337,18 @@ def fidelity_verdict(fidelity: pd.DataFrame) -> str:
             f"test moulds x {int(first['n_seeds'])} seeds): " + "; ".join(words) + ".")
 
 
+def fidelity_blocks(fidelity: pd.DataFrame) -> list[str]:
+    """The fidelity table, or its verdict alone when no reference of this scene exists."""
+    if fidelity.empty:
+        return [verdict(fidelity_verdict(fidelity))]
+    return [table(fidelity, "Fidelity to the paper's CONDOR: each solver's ensemble (the "
+                  "dataset's replica seeds) against the reference anneals the product ships, "
+                  "distance between expected fields (RMS over the normalised fields, noise "
+                  "removed, 95% interval over moulds), one reference simulation's scatter, cost "
+                  "in evaluation-equivalents a mould, and the differences of the cell-averaged "
+                  "orientations and of the energy per cell (%).", digits=3)]
+
+
 def _dataset_line(config, summary: pd.DataFrame) -> str:
     ok = summary["state"].eq("ok")
     moulds = summary["mould"].nunique() if "mould" in summary else len(summary)
@@ -466,12 +478,7 @@ def _simulator_section(inp) -> Section:
               "expected fields (RMS, noise removed) and the scatter of one simulation within the "
               "rung.", digits=3),
         verdict(ladder_verdict(ladder)),
-        table(_csv(inp, "fidelity"), "Fidelity to the paper's CONDOR: each solver's ensemble "
-              "(the dataset's replica seeds) against the reference anneals the product ships, "
-              "distance between expected fields (RMS over the normalised fields, noise removed, "
-              "95% interval over moulds), one reference simulation's scatter, cost in "
-              "evaluation-equivalents a mould, and the differences of the cell-averaged "
-              "orientations and of the energy per cell (%).", digits=3),
+        *fidelity_blocks(_csv(inp, "fidelity")),
         figure(inp["convergence_chart"], "Systematic change of the fields (noise removed) "
                "against depth and box size; dashed: half the scatter of one simulation."),
         table(convergence[conv_cols], "Scene convergence: a reduction is justified when its "
