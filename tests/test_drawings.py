@@ -152,6 +152,24 @@ def test_inches_in_dxf_by_hand(tmp_path):
     assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 5.0), rel=1e-9)
 
 
+def test_dxf_in_metres_names_its_unit(tmp_path):
+    """$INSUNITS = 6 (metres): the message names metres, not mm (issue 33, item 12); with
+    l0_um the 0.4 x 0.3 mm rectangle (0.0004 x 0.0003 m) is 10 x 7.5 l0 at l0 = 40 um."""
+    doc = ezdxf.new(units=6)
+    doc.modelspace().add_lwpolyline([(0, 0), (4e-4, 0), (4e-4, 3e-4), (0, 3e-4)], close=True)
+    doc.saveas(tmp_path / "m.dxf")
+    with pytest.raises(D.DrawingError, match=r"is drawn in meters \(\$INSUNITS = 6, read as "
+                                             r"1000 mm a unit\): pass l0_um"):
+        D.load_mould(tmp_path / "m.dxf", TINY)
+    xmin, ymin, xmax, ymax = D.load_mould(tmp_path / "m.dxf", TINY, l0_um=40).polygon.bounds
+    assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 7.5), rel=1e-9)
+    doc.units = 0  # unitless: the message says the unit came from the units argument
+    doc.saveas(tmp_path / "bare.dxf")
+    with pytest.raises(D.DrawingError, match=r"is drawn in mm \(\$INSUNITS = 0, unitless: "
+                                             r"units = 'mm' says so\)"):
+        D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
+
+
 def test_unitless_dxf_needs_units(tmp_path):
     doc = ezdxf.new()
     doc.units = 0

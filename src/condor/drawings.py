@@ -272,12 +272,13 @@ def _check_l0_um(l0_um) -> None:
                            "(the cell spacing l0)")
 
 
-def _l0_per_unit(unit: str, l0_um: float | None, source: str, how: str) -> float:
-    """Length in l0 of one drawing unit ("l0" or "mm"); `how` says where the unit came from."""
+def _l0_per_unit(unit: str, l0_um: float | None, source: str, label: str, how: str) -> float:
+    """Length in l0 of one drawing unit ("l0" or "mm"); `label` is the file's own unit
+    (meters, um, user units, ...) and `how` says where it came from, for the message."""
     if unit == "l0":
         return 1.0
     if l0_um is None:
-        raise DrawingError(f"{source} is drawn in mm ({how}): pass l0_um, the cell spacing l0 "
+        raise DrawingError(f"{source} is drawn in {label} ({how}): pass l0_um, the cell spacing l0 "
                            "in micrometres, to convert it to l0 (or declare the drawing in "
                            "l0 if it is)")
     return 1000.0 / float(l0_um)
@@ -466,7 +467,7 @@ def _finish(shapes: _Shapes, mm_per_unit: float, l0_um, flip_y: bool, how: str) 
             if gap < -slack:
                 raise InvalidMouldError(f"{source}: {names[i]} and {names[j]} overlap "
                                         f"(by {-gap:.4g} {label}); tethers must be apart")
-    scale = mm_per_unit * _l0_per_unit(unit, l0_um, source, how)
+    scale = mm_per_unit * _l0_per_unit(unit, l0_um, source, label, how)
     sign = -1.0 if flip_y else 1.0
     polygon = orient(affinity.scale(polygon, scale, sign * scale, origin=(0, 0)))
     tethers = tethers * [scale, sign * scale, scale]
@@ -636,7 +637,7 @@ def _read_svg(path: Path, units: str | None, l0_um: float | None) -> Drawing:
                "it states no units, so its user units are CSS px, 1/96 in; set "
                "data-units=\"l0\" on <svg> or pass units if it is drawn in l0")
     unit = "l0" if unit == "l0" else "mm"
-    tol = FLATTEN_TOLERANCE_L0 / (per_user * _l0_per_unit(unit, l0_um, source, how))
+    tol = FLATTEN_TOLERANCE_L0 / (per_user * _l0_per_unit(unit, l0_um, source, label, how))
 
     rings, circles, ignored, counts = [], [], 0, {}
     for element in svg.elements():
@@ -735,15 +736,17 @@ def _read_dxf(path: Path, units: str | None, l0_um: float | None) -> Drawing:
             mm_per_unit = dxfunits.conversion_factor(insunits, dxfunits.MM)
         except (KeyError, ValueError, IndexError) as error:
             raise DrawingError(f"{path}: $INSUNITS = {insunits} is not a length unit") from error
-        unit, how = "mm", f"$INSUNITS = {insunits}"
-        label = dxfunits.unit_name(insunits).lower()
+        unit, label = "mm", dxfunits.unit_name(insunits).lower()
+        how = f"$INSUNITS = {insunits}, read as {mm_per_unit:g} mm a unit"
     else:
-        unit = _resolve_units(declared, units, source, f"header property {DXF_UNITS_PROPERTY}"
-                              if declared is not None else "$INSUNITS = 0, unitless")
+        where = (f"header property {DXF_UNITS_PROPERTY}" if declared is not None
+                 else "$INSUNITS = 0, unitless")
+        unit = _resolve_units(declared, units, source, where)
         mm_per_unit = 1e-3 if unit == "um" else 1.0
         unit, label = ("l0" if unit == "l0" else "mm"), unit
-        how = f"its units are {label}"
-    tol = FLATTEN_TOLERANCE_L0 / (mm_per_unit * _l0_per_unit(unit, l0_um, source, how))
+        how = (f"{where} = {label!r}" if declared is not None
+               else f"{where}: units = {label!r} says so")
+    tol = FLATTEN_TOLERANCE_L0 / (mm_per_unit * _l0_per_unit(unit, l0_um, source, label, how))
 
     hidden = {layer.dxf.name.lower() for layer in doc.layers
               if layer.is_off() or layer.is_frozen()}
