@@ -137,3 +137,54 @@ def test_the_schema_takes_every_variant_setting_the_library_knows():
     config = Config.default(surrogate={"variants": ["t"], "models": {"t": {
         "model": "unet", "head": "physics", "loss": "gaussian", "sum_weight": 1.0}}})
     assert config.surrogate["models"]["t"]["sum_weight"] == 1.0
+
+
+# --- combinations that would fail late (issue 33, items 10 and 11) -----------------------------
+
+@pytest.mark.parametrize("change, named", [
+    # sizes that exhaust memory or time (a MemoryError a minute in)
+    ({"scene_overrides": {"box": 100000}}, r"scene_overrides/box = 100000: .* cells; the limit "
+                                           r"is 200,000 a mould"),
+    ({"scene_overrides": {"depth": 1000}}, r"scene_overrides/depth = 1000: .* the limit is "
+                                           r"200,000"),
+    ({"scene_overrides": {"box": 500, "depth": 2}}, r"scene_overrides/box = 500: "),
+    ({"scene_overrides": {"pixels": 1024}, "n_moulds": 20000},
+     r"scene_overrides/pixels = 1024: .* GiB of fields; the limit is 256 GiB"),
+    ({"n_moulds": 10 ** 9}, r"n_moulds = 1000000000: .* the limit is 256 GiB"),
+    ({"scene_overrides": {"sigma": 1000}}, r"scene_overrides/sigma = 1000: .* the limit is 1 GiB"),
+    ({"report": {"convergence_depths": [2.0, 500.0]}},
+     r"report/convergence_depths = \[2.0, 500.0\]: .* the limit is 200,000"),
+    ({"report": {"convergence_box_scales": [1.0, 30.0]}},
+     r"report/convergence_box_scales = \[1.0, 30.0\]: .* the limit is 200,000"),
+    # moulds the generator or the lattice cannot build (the moulds or simulate jobs fail)
+    ({"scene_overrides": {"box": 5}}, r"scene_overrides/box = 5: .* smaller than the 20 l0\^2"),
+    ({"scene_overrides": {"area_fraction": 0.01}}, r"scene_overrides/area_fraction = 0.01: "),
+    ({"report": {"convergence_box_scales": [0.1, 1.0]}}, r"report/convergence_box_scales"),
+    ({"scene_overrides": {"max_extent": 0.6}}, r"scene_overrides/max_extent = 0.6: .* at most 0.62"),
+    ({"scene_overrides": {"area_fraction": 0.81}}, r"scene_overrides/area_fraction = 0.81: "),
+    # too few replicas for the studies (accuracy and ladder fail after training and design)
+    ({"simulation": {"replicas": {"test": 1}}}, r"simulation/replicas/test: 1 is too few.* 4 "),
+    ({"simulation": {"replicas": {"test": 4, "test_tether_free": 2}}},
+     r"simulation/replicas/test_tether_free: 2 is too few"),
+    # no surrogate variant: the design stage takes the first (an IndexError parsing the rules)
+    ({"surrogate": {"variants": []}}, r"surrogate/variants: "),
+])
+def test_combinations_that_would_fail_late_are_refused_in_one_line(change, named):
+    config = default_config()
+    config.update(change)
+    with pytest.raises(ConfigError, match=named) as info:
+        Config.from_dict(config)
+    assert "\n" not in str(info.value) and str(info.value).startswith("config key ")
+
+
+@pytest.mark.parametrize("name", ["config.yaml", "tiny.yaml", "paper.yaml"])
+def test_shipped_configs_pass_the_size_limits_with_a_wide_margin(name, monkeypatch):
+    """Every shipped config still passes with the memory limits ten times tighter and the
+    smallest mould four times larger (the paper scene: ~9,400 cells, 14 GiB of fields)."""
+    import condor.config as C
+
+    monkeypatch.setattr(C, "MAX_CELLS", C.MAX_CELLS / 10)
+    monkeypatch.setattr(C, "MAX_FIELD_BYTES", C.MAX_FIELD_BYTES / 10)
+    monkeypatch.setattr(C, "MAX_KERNEL_BYTES", C.MAX_KERNEL_BYTES / 10)
+    monkeypatch.setattr(C, "MIN_MOULD_AREA", C.MIN_MOULD_AREA * 4)
+    Config.load(CONFIG_DIR / name)

@@ -15,7 +15,7 @@ from condor.folder import FolderError, RunLock, check_folder, store_gaps, store_
 from condor.store import create_store, sample_index, write_expected, write_inputs, write_sample
 
 BASE = {"scene": "tiny", "seed": 1, "n_moulds": 6, "split": {"test": 2},
-        "simulation": {"replicas": {"test": 2}}}
+        "simulation": {"replicas": {"test": 4}}}
 
 
 def config_in(tmp_path, **changes):
@@ -30,7 +30,7 @@ def test_a_folder_built_for_other_data_stops_and_names_each_key(tmp_path):
     for change, key in (({"seed": 7}, "seed"), ({"n_moulds": 8}, "n_moulds"),
                         ({"simulation": {"solver": "anneal"}}, "solver"),
                         ({"batch_size": 3}, "batch_size"), ({"scene": "default"}, "scene"),
-                        ({"simulation": {"replicas": {"test": 3}}}, "replicas")):
+                        ({"simulation": {"replicas": {"test": 5}}}, "replicas")):
         with pytest.raises(FolderError, match=key) as info:
             check_folder(config_in(tmp_path, **change))
         assert "Nothing was run" in str(info.value) and str(config.results) in str(info.value)

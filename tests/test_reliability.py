@@ -20,9 +20,10 @@ from test_workflow import REPO, run, snakemake_args
 
 pytestmark = pytest.mark.slow
 
-# The tiny scene, cut down: 8 moulds in 4 batches, 2 test moulds of 3 replicas.
+# The tiny scene, cut down: 8 moulds in 4 batches, 2 test moulds (0 and 4) of 4 replicas
+# (the fewest the studies take: condor.studies.reference.MIN_REPLICAS).
 SMALL = {"n_moulds": 8, "batch_size": 2, "split": {"test": 2},
-         "simulation": {"replicas": {"test": 3}}}
+         "simulation": {"replicas": {"test": 4}}}
 
 
 def small_args(workdir, *extra):
@@ -263,13 +264,13 @@ def test_damaged_derived_and_layout_arrays_are_found_and_repaired(folder, chunks
 
 def test_corrupt_chunks_deep_finds_are_set_aside_and_repaired(folder):
     before = store_files(folder)
-    for chunk in ("fields/c/3/0/0/0", "energy/c/10", "fields_mean/c/0/0/0/0"):
+    for chunk in ("fields/c/3/0/0/0", "energy/c/11", "fields_mean/c/0/0/0/0"):
         damage(folder, chunk, "flip")
     assert check_store_cli(folder).returncode == 0  # the frames are whole: only decoding sees it
     check = check_store_cli(folder, "--deep")
     assert check.returncode == 1 and "Traceback" not in check.stderr
     for where in ("sample 3 (mould 3 replica 0), array fields",
-                  "sample 10 (mould 4 replica 1), array energy", "mould 0, array fields_mean"):
+                  "sample 11 (mould 4 replica 1), array energy", "mould 0, array fields_mean"):
         assert where in check.stdout
     assert "moved the damaged chunk files" in check.stdout
     assert (folder / "results" / "dataset.zarr.damaged" / "fields" / "c" / "3").is_dir()

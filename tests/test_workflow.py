@@ -189,6 +189,21 @@ def test_bad_config_stops_with_named_key(tmp_path):
     assert not store_of(tmp_path).exists()
 
 
+@pytest.mark.parametrize("change, named, why", [
+    ({"scene_overrides": {"box": 100000}}, "config key scene_overrides/box = 100000: ",
+     "the limit is 200,000 a mould"),
+    ({"simulation": {"replicas": {"test": 1}}}, "config key simulation/replicas/test: 1 ",
+     "4 or more replicas"),
+])
+def test_a_config_that_would_fail_late_stops_before_any_job(tmp_path, change, named, why):
+    """Issue 33, items 10 and 11: one line naming the key, before the DAG (`-n` shows it)."""
+    proc = run(tmp_path, *overlay(tmp_path, **change), "-n", check=False)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("condor: ")]
+    assert len(lines) == 1 and named in lines[0] and why in lines[0]
+    assert not (tmp_path / "results").exists()
+
+
 def test_lint_is_clean():
     proc = subprocess.run([*SNAKEMAKE, "--lint", "--snakefile", str(REPO / "Snakefile")], cwd=REPO,
                           capture_output=True, text=True)

@@ -3,7 +3,8 @@
 The JSON schema (`config.schema.yaml`, shipped inside the package) is the only place where
 defaults live: `Config.from_dict` fills them, validates, checks what a schema cannot express
 (a split that leaves no training mould, a U-Net that does not fit the grid, a CUDA device on a
-machine without one) and freezes the result. The workflow (`workflow/rules/common.smk`) and
+machine without one, fewer test replicas than the studies need, a scene or store beyond the
+size limits below: every combination that would fail in a late job) and freezes the result. The workflow (`workflow/rules/common.smk`) and
 the CLI build it the same way, so both stop on the same bad key with a one-line message.
 
 `data_config()` is the part of a config that defines the data in a results folder (scene,
@@ -25,14 +26,44 @@ import yaml
 
 from condor.anneal import T_INIT, T_RATIO
 from condor.energy import DELTA
-from condor.lattice import SHELL_KBAR
+from condor.fields import FIELD_NAMES, window_width
+from condor.lattice import SHELL_KBAR, fcc_layers
 from condor.moulds import MouldParams, is_tether_free
 from condor.scenes import Scene, get_scene
 from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.minimise import FTOL
 from condor.store import SPLITS, StoreSpec, assign_splits
+from condor.studies.reference import MIN_REPLICAS
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
+
+# What a config may ask of the machines, checked before any job runs (a typo such as
+# `box: 100000` is refused, not met as a MemoryError a minute in). Each limit is far above
+# every shipped config (the paper scene: ~9,400 cells a mould, 14 GiB of fields) and far below
+# what fails:
+# - cells of one mould (its area x one cell per l0^2 of an FCC (001) layer x the layers of its
+#   depth): a simulation holds up to ~8 KB a cell (measured at 37,400 cells, box 125 l0: 305
+#   MB with relaxed_anneal, 233 MB with lbfgs), so 200,000 fill the simulate rule's 2 GB
+#   (mem_mb 2000); 21x the paper scene, whose simulations already take 15 s or more;
+MAX_CELLS = 200_000
+# - the store's fields (samples x 8 float32 maps of pixels^2): the baselines read the training
+#   split's fields whole into memory (the evaluate_baselines and accuracy jobs), so a store
+#   beyond this fits no common machine; 18x the paper's 14 GiB;
+MAX_FIELD_BYTES = 256 * 2**30
+# - the rasteriser's kernel weights of one sample (2 axes x cells x window x 8 bytes; the
+#   window is 11 sigma in px, condor.fields): within the fields rule's 2 GB (mem_mb 2000);
+#   the paper scene's are 5 MB;
+MAX_KERNEL_BYTES = 2**30
+# - the smallest mould (area_fraction x box^2, l0^2) the generator and the lattice build:
+#   measured over 300 moulds, 10 l0^2 left 2 without a mobile cell, 14 and 20 none (area
+#   fraction 0.4 and 0.1); the tiny scene's are 98 l0^2;
+MIN_MOULD_AREA = 20.0
+# - how full the generator may pack a mould's extent (area_fraction / max_extent^2): fuller,
+#   some moulds are never accepted (measured, 40-300 moulds a setting: 0.82 (area fraction
+#   0.4, extent 0.7) failed 15 of 40, 0.81 (0.81, 1.0) 16 of 40, 0.74 (0.6, 0.9) 5 of 40,
+#   0.70 (0.45, 0.8) 1 of 40; 0.625 (0.4, 0.8) and 0.68 (0.55, 0.9) none of 300); the
+#   paper's 0.4 / 0.9^2 = 0.49.
+MAX_FILL = 0.62
 
 # The CONDOR model parameters every dataset records, from the physics modules themselves.
 MODEL_PARAMETERS = MappingProxyType({
@@ -197,6 +228,7 @@ class Config:
     # --- checks a schema cannot express ---------------------------------------------------
 
     def _check_consistency(self, check_surrogate: bool = True) -> None:
+        self._check_sizes()
         try:
             labels = self.splits()
         except ValueError as err:
@@ -209,11 +241,79 @@ class Config:
             self.mould_params()
         except ValueError as err:
             raise ConfigError(f"config key moulds: {err}") from err
+        counts = self.simulation["replicas"]
+        for name in ("test", "test_tether_free"):
+            if counts[name] is not None and counts[name] < MIN_REPLICAS:
+                raise ConfigError(
+                    f"config key simulation/replicas/{name}: {counts[name]} is too few; the "
+                    "accuracy study and the anneal ladder measure against the mean of "
+                    f"{MIN_REPLICAS} or more replicas a test mould "
+                    "(condor.studies.reference.MIN_REPLICAS)")
         if check_surrogate:
             self._check_surrogate()
         scene = self.scene
         if not (math.isfinite(scene.pixel_size) and scene.pixels >= 8):
             raise ConfigError(f"config key scene_overrides: {scene.pixels} px is too coarse")
+
+    def _scene_key(self, *names: str) -> str:
+        """'scene_overrides/<name> = <value>' for the first of `names` the config overrides
+        (the key to blame for a scene size), else the preset's 'scene = <name>'."""
+        given = self.raw["scene_overrides"]
+        name = next((n for n in names if n in given), None)
+        return f"scene = {self.raw['scene']}" if name is None else \
+            f"scene_overrides/{name} = {given[name]:g}"
+
+    def _check_sizes(self) -> None:
+        """Refuse a scene or dataset beyond the limits at the top of this module, naming the
+        key. Arithmetic only: it runs before the splits are drawn."""
+        scene, report = self.scene, self.report
+        if scene.area_fraction > MAX_FILL * scene.max_extent ** 2:
+            raise ConfigError(
+                f"config key {self._scene_key('area_fraction', 'max_extent')}: an area fraction "
+                f"of {scene.area_fraction:g} within a max_extent of {scene.max_extent:g} is "
+                f"{scene.area_fraction / scene.max_extent ** 2:.2f} of the extent's square; the "
+                f"mould generator accepts at most {MAX_FILL:g} (condor.config.MAX_FILL)")
+        # every lattice the workflow builds: the dataset's, and the convergence study's
+        # deepest, smallest and largest (condor.studies.convergence)
+        depths, scales = report["convergence_depths"], report["convergence_box_scales"]
+        lattices = [(self._scene_key("box", "depth", "area_fraction"), scene.box, scene.depth),
+                    (f"report/convergence_depths = {list(depths)}", scene.box, max(depths))]
+        lattices += [(f"report/convergence_box_scales = {list(scales)}", scene.box * scale,
+                      scene.depth) for scale in ((min(scales), max(scales)) if scales else ())]
+        for key, box, depth in lattices:
+            area = scene.area_fraction * box ** 2
+            cells = area * fcc_layers(depth)  # one cell per l0^2 of an FCC (001) layer
+            mould = (f"a mould of {area:.4g} l0^2 (box {box:g} l0, area fraction "
+                     f"{scene.area_fraction:g})")
+            if area < MIN_MOULD_AREA:
+                raise ConfigError(f"config key {key}: {mould} is smaller than the "
+                                  f"{MIN_MOULD_AREA:g} l0^2 the generator and the lattice "
+                                  "need (condor.config.MIN_MOULD_AREA)")
+            if cells > MAX_CELLS:
+                raise ConfigError(
+                    f"config key {key}: {mould} and depth {depth:g} l0 ({fcc_layers(depth)} "
+                    f"layers) holds ~{cells:,.0f} cells; the limit is {MAX_CELLS:,} a mould "
+                    "(memory and time of a simulation: condor.config.MAX_CELLS)")
+            kernel = 2 * cells * window_width(scene.sigma_px) * 8
+            if kernel > MAX_KERNEL_BYTES:
+                raise ConfigError(
+                    f"config key {self._scene_key('sigma', 'pixels', 'box')}: a kernel of "
+                    f"{scene.sigma_px:.4g} px over ~{cells:,.0f} cells needs "
+                    f"{kernel / 2**30:.3g} GiB to rasterise a sample; the limit is "
+                    f"{MAX_KERNEL_BYTES / 2**30:g} GiB (condor.config.MAX_KERNEL_BYTES)")
+        # samples: each mould's replicas by split, the test moulds' largest count (no draw)
+        counts, n_test = self.simulation["replicas"], min(self.split["test"], self.n_moulds)
+        n_val = round(self.split["val_fraction"] * (self.n_moulds - n_test))
+        samples = (n_test * max(counts["test"], counts["test_tether_free"] or 0)
+                   + n_val * counts["val"] + (self.n_moulds - n_test - n_val) * counts["train"])
+        size = samples * len(FIELD_NAMES) * scene.pixels ** 2 * 4
+        if size > MAX_FIELD_BYTES:
+            key = self._scene_key("pixels") if "pixels" in self.raw["scene_overrides"] else \
+                f"n_moulds = {self.n_moulds}"
+            raise ConfigError(
+                f"config key {key}: up to {samples:,} samples of 8 fields at {scene.pixels} px "
+                f"make {size / 2**30:,.0f} GiB of fields; the limit is "
+                f"{MAX_FIELD_BYTES / 2**30:g} GiB (condor.config.MAX_FIELD_BYTES)")
 
     def _check_surrogate(self) -> None:
         # Imported here: torch (and cma) cost seconds to import; a workflow job skips this.
