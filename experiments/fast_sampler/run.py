@@ -30,14 +30,13 @@ import pandas as pd  # noqa: E402
 
 from condor import anneal as anneal_mod  # noqa: E402
 from condor.energy import random_orientations  # noqa: E402
-from condor.fields import cell_fields, normalise  # noqa: E402
 from condor.lattice import build_lattice  # noqa: E402
 from condor.estimators import pad_replicas  # noqa: E402
 from condor.scenes import get_scene  # noqa: E402
 from condor.seeds import replica_seed  # noqa: E402
 from condor.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
 from condor.studies.fidelity import fidelity_row  # noqa: E402
-from condor.studies.paper_reference import budget_tag, mould_of, run_path  # noqa: E402
+from condor.studies.paper_reference import budget_tag, cached_rung, mould_of, scene_fields  # noqa: E402
 
 CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
 REF_CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
@@ -76,33 +75,13 @@ def cached(cache: Path, spec: str, scene, mould, k: int, seed: int, fresh: bool 
         with np.load(path) as d:
             return d["fields"], float(d["energy"]), float(d["evaluations"]), str(d["status"])
     r = run_method(spec, scene, mould, seed)
-    f = normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box, scene.pixels,
-                              scene.sigma), r.n_cells).astype(np.float32)
+    f = scene_fields(r, scene).astype(np.float32)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(path.name + ".tmp.npz")
     np.savez(tmp, fields=f, energy=r.energy_per_cell, evaluations=r.info["evaluations"],
              status=r.status, seconds=r.seconds)
     tmp.replace(path)
     return f, r.energy_per_cell, r.info["evaluations"], r.status
-
-
-def reference(scene, seed: int, moulds, budget: float, runs: int):
-    fields, energy = [], []
-    for m in moulds:
-        fm, em = [], []
-        for k in range(runs):
-            path = run_path(REF_CACHE, scene, seed, m, budget, k)
-            if not path.exists():
-                continue
-            r = SimResult.load(path)
-            if r.status != "ok":
-                continue
-            fm.append(normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box,
-                                            scene.pixels, scene.sigma), r.n_cells))
-            em.append(r.energy_per_cell)
-        fields.append(fm)
-        energy.append(em)
-    return fields, energy
 
 
 def main(argv=None) -> int:
@@ -123,7 +102,8 @@ def main(argv=None) -> int:
     moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
     refs = {}
     for budget in a.reference:
-        f, e = reference(scene, a.seed, a.moulds, budget, a.reference_runs)
+        f, e = map(list, zip(*(cached_rung(REF_CACHE, scene, a.seed, m, budget, a.reference_runs)
+                                 for m in a.moulds)))
         keep = [i for i, x in enumerate(f) if len(x) >= 2]
         refs[budget] = (keep, f, e)
         print(f"reference anneal {budget_tag(budget)}: {len(keep)} moulds with >= 2 runs",

@@ -18,33 +18,16 @@ import subprocess
 import sys
 from pathlib import Path
 
-import numpy as np
 import pandas as pd
 
 from condor.anneal import KERNEL
-from condor.fields import cell_fields, normalise
 from condor.estimators import pad_replicas
 from condor.scenes import get_scene
-from condor.simulate import SimResult
 from condor.studies.fidelity import fidelity_row
-from condor.studies.paper_reference import budget_tag, pack_mould, run_path
+from condor.studies.paper_reference import budget_tag, cached_rung, pack_mould
 
 HERE = Path(__file__).resolve().parent
 CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
-
-
-def rung(scene, seed, mould, budget, runs):
-    fields, energy = [], []
-    for k in range(runs):
-        path = run_path(CACHE, scene, seed, mould, budget, k)
-        if path.exists():
-            r = SimResult.load(path)
-            if r.status == "ok":
-                fields.append(normalise(cell_fields(r.positions, r.orientations, r.tension,
-                                                    scene.box, scene.pixels, scene.sigma),
-                                        r.n_cells))
-                energy.append(r.energy_per_cell)
-    return fields, energy
 
 
 def main(argv=None) -> int:
@@ -59,7 +42,7 @@ def main(argv=None) -> int:
     scene = get_scene(a.scene)
     rows = []
     rungs = sorted(a.rungs)
-    data = {b: [rung(scene, a.seed, m, b, a.runs) for m in a.moulds] for b in rungs}
+    data = {b: [cached_rung(CACHE, scene, a.seed, m, b, a.runs) for m in a.moulds] for b in rungs}
     for lower, upper in zip(rungs, rungs[1:]):
         keep = [i for i in range(len(a.moulds))
                 if len(data[lower][i][0]) >= 2 and len(data[upper][i][0]) >= 2]

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 
 from condor import estimators as est
-from condor.fields import FIELD_NAMES, cell_fields, normalise
+from condor.fields import FIELD_NAMES
 
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
@@ -74,7 +74,7 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
     per cell and evaluation-equivalents (M, R); a failed run is NaN."""
     from condor.seeds import replica_seed
     from condor.simulate import simulate
-    from condor.studies.paper_reference import mould_of
+    from condor.studies.paper_reference import mould_of, scene_fields
 
     fields = np.full((len(mould_ids), replicas, 8, scene.pixels, scene.pixels), np.nan)
     energy = np.full((len(mould_ids), replicas), np.nan)
@@ -86,9 +86,7 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
                          seed=replica_seed(dataset_seed, m, k))
             if r.status != "ok":
                 continue
-            fields[i, k] = normalise(cell_fields(r.positions, r.orientations, r.tension,
-                                                 scene.box, scene.pixels, scene.sigma),
-                                     r.n_cells)
+            fields[i, k] = scene_fields(r, scene)
             energy[i, k] = r.energy_per_cell
             evaluations[i, k] = r.info["evaluations"]
         if log is not None:

@@ -71,6 +71,27 @@ def run_reference(cache, scene: Scene, dataset_seed: int, mould_id: int, budget:
     return result
 
 
+def scene_fields(state, scene: Scene) -> np.ndarray:
+    """Normalised fields (8, H, W) at the scene's grid of any state with positions,
+    orientations and tension (a SimResult or a ReferenceRun)."""
+    return normalise(cell_fields(state.positions, state.orientations, state.tension, scene.box,
+                                 scene.pixels, scene.sigma), len(state.positions))
+
+
+def cached_rung(cache, scene: Scene, dataset_seed: int, mould_id: int, budget: float, runs: int):
+    """The finished ok runs 0..runs-1 of a mould's rung in the run cache: (fields, energies
+    per cell), lists of equal length (empty when none has finished)."""
+    fields, energy = [], []
+    for k in range(runs):
+        path = run_path(cache, scene, dataset_seed, mould_id, budget, k)
+        if path.exists():
+            r = SimResult.load(path)
+            if r.status == "ok":
+                fields.append(scene_fields(r, scene))
+                energy.append(r.energy_per_cell)
+    return fields, energy
+
+
 # --- the shipped data product ---------------------------------------------------------------
 # One .npz per (scene, dataset seed, mould) under REFERENCE_DIR, holding every finished run of
 # every rung packed: positions and orientations quantised to int16 (POS_QUANTUM l0, 1/32767),
@@ -132,8 +153,7 @@ class ReferenceRun:
 
     def fields(self, scene: Scene) -> np.ndarray:
         """Normalised fields (8, H, W) at the scene's grid."""
-        return normalise(cell_fields(self.positions, self.orientations, self.tension,
-                                     scene.box, scene.pixels, scene.sigma), len(self.positions))
+        return scene_fields(self, scene)
 
 
 def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: float | None = None,
