@@ -107,6 +107,21 @@ def test_store_spec_records_scene_split_and_data_config():
     assert set(test_replicas) <= {counts["test"], counts["test_tether_free"]}
 
 
+def test_moulds_with_a_paper_reference_are_test_moulds_at_any_size():
+    """The surrogate is scored against the paper's ensemble on the reference moulds, so they
+    are held out however many moulds a config builds (Config.splits pins them)."""
+    from condor.studies.paper_reference import reference_moulds
+
+    moulds = reference_moulds("default", 2026)
+    assert len(moulds) >= 6
+    for n, test in [(960, 100), (600, 60), (max(moulds) + 1, len(moulds))]:
+        config = Config.from_dict({**default_config(), "n_moulds": n,
+                                   "split": {"test": test, "val_fraction": 0.1}})
+        splits = config.splits()
+        assert [splits[m] for m in moulds] == ["test"] * len(moulds)
+        assert splits.count("test") == test
+
+
 def test_tether_free_test_moulds_take_their_own_replicas():
     """simulation.replicas.test_tether_free: the tether-free test moulds (as the generator
     draws them) take it, every other mould its split's count; null leaves them alone."""

@@ -55,6 +55,20 @@ def test_split_is_deterministic_and_sized():
     assert a.count("test") == 10 and a.count("val") == 9 and a.count("train") == 81
 
 
+def test_pinned_samples_are_test_samples_and_leave_a_plain_split_alone():
+    plain = assign_splits(200, 20, 0.1, seed=3)
+    train = [i for i, s in enumerate(plain) if s == "train"][:5]
+    pinned = assign_splits(200, 20, 0.1, seed=3, pinned=train + [250])  # 250: not a sample
+    assert all(pinned[i] == "test" for i in train)
+    assert pinned.count("test") == 20 and pinned.count("val") == 18
+    # the other test samples are the plain permutation's first ones: 15 of the 20 kept
+    assert sum(a == b == "test" for a, b in zip(plain, pinned)) == 15
+    already = [i for i, s in enumerate(plain) if s == "test"][:7]
+    assert assign_splits(200, 20, 0.1, seed=3, pinned=already) == plain
+    with pytest.raises(ValueError, match="paper reference"):
+        assign_splits(200, 4, 0.1, seed=3, pinned=train)
+
+
 @pytest.mark.parametrize("args", [(10, 10, 0.1), (10, -1, 0.1), (10, 2, 1.0)])
 def test_split_rejects_bad_sizes(args):
     with pytest.raises(ValueError):

@@ -173,9 +173,12 @@ class Config:
         return params
 
     def splits(self) -> tuple[str, ...]:
-        """The split of every mould (deterministic for the seed)."""
+        """The split of every mould (deterministic for the seed); the moulds the package
+        holds a paper reference of (scene and seed) are always test moulds, so that the
+        surrogate is scored against the paper's ensemble on moulds it did not train on."""
+        from condor.studies.paper_reference import reference_moulds
         return assign_splits(self.n_moulds, self.split["test"], self.split["val_fraction"],
-                             self.seed)
+                             self.seed, pinned=reference_moulds(self.scene.name, self.seed))
 
     def replicas(self) -> tuple[int, ...]:
         """Simulations per mould, from its split; a tether-free test mould takes

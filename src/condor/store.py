@@ -137,14 +137,25 @@ class StoreSpec:
                              f"got {self.replicas}")
 
 
-def assign_splits(n_samples: int, n_test: int, val_fraction: float, seed: int) -> tuple[str, ...]:
+def assign_splits(n_samples: int, n_test: int, val_fraction: float, seed: int,
+                  pinned=()) -> tuple[str, ...]:
     """Deterministic split: a seeded permutation gives `n_test` test samples, then
-    `val_fraction` of the rest (rounded) for validation, the remainder for training."""
+    `val_fraction` of the rest (rounded) for validation, the remainder for training.
+    `pinned` samples (those below n_samples; the moulds with a paper reference) are moved to
+    the front of the permutation, so they are always test samples; when they are test
+    samples of the plain permutation already, the split is the plain one."""
     if not 0 <= n_test < n_samples:
         raise ValueError(f"split.test must be in [0, n_moulds), got {n_test} for {n_samples} moulds")
     if not 0.0 <= val_fraction < 1.0:
         raise ValueError(f"split.val_fraction must be in [0, 1), got {val_fraction}")
     order = np.random.default_rng([seed, 0x5B117]).permutation(n_samples)
+    pinned = sorted({int(p) for p in pinned if 0 <= int(p) < n_samples})
+    if len(pinned) > n_test:
+        raise ValueError(f"split.test must hold the {len(pinned)} moulds with a paper reference "
+                         f"({pinned}), got {n_test}")
+    if pinned:
+        front = np.isin(order, pinned)
+        order = np.concatenate([order[front], order[~front]])
     n_val = int(round(val_fraction * (n_samples - n_test)))
     labels = np.full(n_samples, "train", dtype=object)
     labels[order[:n_test]] = "test"
