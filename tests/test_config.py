@@ -28,6 +28,38 @@ def test_shipped_configs_validate(name):
     assert config.store_spec().n_samples == sum(config.replicas())
 
 
+OVERLAYS = ["tiny.yaml", "paper.yaml"]
+
+
+def test_the_default_run_is_the_schemas_defaults():
+    """config.yaml shows keys to change, each at the schema's default: the default run (960
+    moulds, 100 test moulds with 4 replicas, the `unet` preset) is the schema's."""
+    config = Config.load(CONFIG_DIR / "config.yaml")
+    assert config == Config.default()
+    assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"]) == \
+        (960, 100, 4)
+    assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
+
+
+@pytest.mark.parametrize("name", OVERLAYS)
+def test_the_config_snakemake_sees(name):
+    """`snakemake --configfile config/<name>` layers it over the Snakefile's config.yaml:
+    `layered` merges as Snakemake does, and since config.yaml holds defaults only, the
+    overlay alone is the config the workflow runs."""
+    from snakemake.utils import update_config
+
+    from condor.config import layered
+
+    base, over = (yaml.safe_load((CONFIG_DIR / n).read_text()) for n in ("config.yaml", name))
+    seen = yaml.safe_load((CONFIG_DIR / "config.yaml").read_text())
+    update_config(seen, over)
+    assert layered(base, over) == seen
+    workflow = Config.load(CONFIG_DIR / "config.yaml", CONFIG_DIR / name)
+    assert workflow == Config.from_dict(seen) == Config.load(CONFIG_DIR / name)
+    # nested keys are layered, not replaced
+    assert layered({"a": {"b": 1, "c": 2}}, {"a": {"b": 3}}) == {"a": {"b": 3, "c": 2}}
+
+
 def test_schema_ships_in_the_package():
     assert SCHEMA_PATH.parent == Path(__file__).resolve().parents[1] / "src" / "condor"
     assert SCHEMA_PATH.is_file() and not (CONFIG_DIR / "config.schema.yaml").exists()
@@ -123,7 +155,7 @@ def test_tether_free_test_moulds_take_their_own_replicas():
     assert list(config.replicas()) == expected and expected.count(11) >= 3
     assert config.store_spec().replicas == tuple(expected)
     plain = Config.default(n_moulds=60, split={"test": 30}, moulds={"no_tether_fraction": 0.3},
-                           simulation={"replicas": {"test": 4}})
+                           simulation={"replicas": {"test": 4, "test_tether_free": None}})
     assert set(r for r, s in zip(plain.replicas(), plain.splits()) if s == "test") == {4}
 
 
@@ -133,7 +165,8 @@ def test_the_schema_takes_every_variant_setting_the_library_knows():
     from condor.surrogate.variants import SETTING_KEYS
 
     models = load_schema()["properties"]["surrogate"]["properties"]["models"]
-    assert set(models["additionalProperties"]["properties"]) == set(SETTING_KEYS) - {"num_threads"}
+    assert set(models["additionalProperties"]["properties"]) == \
+        set(SETTING_KEYS) - {"num_threads"} | {"preset"}
     config = Config.default(surrogate={"variants": ["t"], "models": {"t": {
         "model": "unet", "head": "physics", "loss": "gaussian", "sum_weight": 1.0}}})
     assert config.surrogate["models"]["t"]["sum_weight"] == 1.0

@@ -144,16 +144,21 @@ class Config:
         return made
 
     @classmethod
-    def load(cls, path: str | Path) -> "Config":
-        """Read a YAML config file and build the Config."""
-        path = Path(path)
-        try:
-            config = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as err:
-            raise ConfigError(f"cannot read config {path}: {err}") from err
-        if not isinstance(config, dict):
-            raise ConfigError(f"config {path} must be a mapping of keys, got {type(config).__name__}")
-        return cls.from_dict(config)
+    def load(cls, *paths: str | Path) -> "Config":
+        """Read YAML config files and build the Config of them layered as Snakemake layers
+        them (`layered`): `Config.load("config/config.yaml", "config/tiny.yaml")` is the
+        config of `snakemake --configfile config/tiny.yaml`."""
+        configs = []
+        for path in map(Path, paths):
+            try:
+                config = yaml.safe_load(path.read_text()) or {}
+            except (OSError, yaml.YAMLError) as err:
+                raise ConfigError(f"cannot read config {path}: {err}") from err
+            if not isinstance(config, dict):
+                raise ConfigError(f"config {path} must be a mapping of keys, got "
+                                  f"{type(config).__name__}")
+            configs.append(config)
+        return cls.from_dict(layered(*configs))
 
     @classmethod
     def default(cls, **changes) -> "Config":
@@ -355,6 +360,25 @@ def check_device(device: str, what: str) -> None:
         raise ConfigError(f"{what}: device type {kind!r} is not supported (cpu or cuda)")
 
 
+def layered(*configs: Mapping) -> dict:
+    """Config dicts layered as Snakemake layers its config files (the Snakefile's
+    `configfile:`, then each --configfile in turn): a mapping updates the mapping beneath it
+    key by key, any other value replaces what was there."""
+    def update(below, above):
+        for key, value in above.items():
+            if isinstance(value, Mapping):
+                below[key] = update(below.get(key, {}) if isinstance(below.get(key), Mapping)
+                                    else {}, value)
+            else:
+                below[key] = value
+        return below
+
+    merged: dict = {}
+    for config in configs:
+        update(merged, json.loads(json.dumps(_plain(config))))
+    return merged
+
+
 def load_schema() -> dict:
     return yaml.safe_load(SCHEMA_PATH.read_text())
 
@@ -368,4 +392,4 @@ def _fill_defaults(config: dict, schema: dict) -> None:
 
 
 __all__ = ["Config", "ConfigError", "MODEL_PARAMETERS", "SCHEMA_PATH", "SPLITS", "check_device",
-           "load_schema"]
+           "layered", "load_schema"]
