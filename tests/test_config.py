@@ -221,3 +221,23 @@ def test_shipped_configs_pass_the_size_limits_with_a_wide_margin(name, monkeypat
     monkeypatch.setattr(C, "MAX_KERNEL_BYTES", C.MAX_KERNEL_BYTES / 10)
     monkeypatch.setattr(C, "MIN_MOULD_AREA", C.MIN_MOULD_AREA * 4)
     Config.load(CONFIG_DIR / name)
+
+
+def test_the_design_defaults_have_one_home():
+    """The CLI's design defaults are the schema's; the design stage and the library's search
+    and confirmation take the numbers from their callers (no default of their own)."""
+    import inspect
+
+    from condor import cli
+    from condor.design import confirm, search
+    from condor.stages.design import design
+
+    args = cli.build_parser().parse_args(["design", "--objective", "uniformity", "--checkpoint",
+                                          "m.pt", "--out", "d"])
+    schema = load_schema()["properties"]["design"]["properties"]
+    assert (args.budget, args.top, args.random, args.replicas, args.seed) == tuple(
+        schema[k]["default"] for k in ("budget", "top", "random", "replicas", "seed"))
+    for function, names in ((design, ("budget", "seed", "n_top", "n_random", "replicas")),
+                            (search, ("budget",)), (confirm, ("n_top", "n_random", "replicas"))):
+        parameters = inspect.signature(function).parameters
+        assert all(parameters[n].default is inspect.Parameter.empty for n in names), function

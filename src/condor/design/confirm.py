@@ -46,7 +46,7 @@ def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
 # --------------------------------------------------------------------------- selection
 
 
-def select_for_confirmation(result: SearchResult, n_top: int = 5, n_random: int = 10,
+def select_for_confirmation(result: SearchResult, n_top: int, n_random: int,
                             seed: int = 0, min_difference: float = 0.02) -> pd.DataFrame:
     """Rows of result.designs to simulate, with a `role` column ("top" or "random").
 
@@ -345,8 +345,8 @@ class Confirmation:
     simulated: SimulatedDesigns
 
 
-def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
-            replicas: int = 3, baseline: pd.DataFrame | None = None,
+def confirm(result: SearchResult, scene, n_top: int, n_random: int,
+            replicas: int, baseline: pd.DataFrame | None = None,
             solver: str | None = None, budget: float | None = None, seed: int | None = None,
             map_fn=map, progress: bool | None = None) -> Confirmation:
     """select_for_confirmation + simulate_designs + confirmation_table + design_summary.

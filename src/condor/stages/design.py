@@ -140,11 +140,12 @@ def _out_dir(out_dir, force: bool, n_top: int) -> Path:
     return out_dir
 
 
-def design(scene: Scene, checkpoint, out_dir, objective: str, budget: int = 2000,
-           seed: int = 0, n_top: int = 5, n_random: int = 10, replicas: int = 2,
-           store=None, l0_um: float | None = None, solver: str | None = None,
+def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, seed: int,
+           n_top: int, n_random: int, replicas: int, store=None, l0_um: float | None = None, solver: str | None = None,
            your_moulds=(), force: bool = False, progress: bool | None = None) -> pd.DataFrame:
-    """Search, confirm and hand over (module docstring); returns the summary row. Every
+    """Search, confirm and hand over (module docstring); returns the summary row. The
+    numbers have one home, the workflow config's `design:` defaults (the packaged schema),
+    which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
     search runs. `your_moulds`: condor.moulds.Mould objects (a user's own designs) scored the
     same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
