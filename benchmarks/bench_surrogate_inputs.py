@@ -40,7 +40,8 @@ from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 
 KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics", "mechanics_shear")
-# the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
+# the recipe of the inputs study, as it ran (the default of its day, not today's `unet` preset:
+# condor.surrogate.variants.PRESETS), but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
            "lr_schedule": "cosine", "batch_size": 8, "lr": 0.002, "augment": True,
