@@ -183,7 +183,7 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     assert listed_only["simulated_objective"].isna().all()
     assert design_table(result, n=2)["role"].tolist() == ["ranked", "ranked"]
     with pytest.raises(ValueError, match="scene 'default'"):
-        confirm(result, get_scene("default"))
+        confirm(result, get_scene("default"), n_top=1, n_random=0, replicas=1)
 
 
 def test_confirmation_figure_is_written(tmp_path):
