@@ -55,8 +55,11 @@ RESUMABLE_KEYS = {"num_threads"}
 
 @dataclass
 class TrainConfig:
-    """Training settings; defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4, betas
-    0.5/0.999, batch 1, 10 epochs).
+    """Training settings; the field defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4,
+    betas 0.5/0.999, batch 1, 10 epochs): the baseline every preset of
+    condor.surrogate.variants.PRESETS names its changes against, and what a checkpoint written
+    before a setting existed is read with (`_check_resumable`). The default model is the
+    preset `unet` (`variants.resolve("unet")`, what `condor train` trains by default).
 
     model: "pix2pix" (paper generator and discriminator at 256 px; data resampled to 256),
     "unet_gan" (U-Net `unet` + PatchGAN `patch`, same losses) or "unet_l1" (U-Net, L1 only).
