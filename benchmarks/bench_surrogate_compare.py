@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from condor.config import Config
-from condor.dataset import open_dataset
+from condor.data.reader import open_dataset
 from condor.surrogate.data import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train

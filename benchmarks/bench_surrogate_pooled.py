@@ -19,7 +19,7 @@ surrogate's largest errors.
         --out CSV DIR/NAME.pt [DIR/NAME.pt ...]
 
 Every store must share the scene (moulds with fewer replicas are NaN-padded, as in the
-accuracy stage: condor.estimators). Predictions are cached
+accuracy stage: condor.measures.estimators). Predictions are cached
 beside each checkpoint (NAME_pooled.npz, keyed by the stores), so scoring more checkpoints
 later re-predicts only the new ones.
 """
@@ -38,9 +38,9 @@ import torch
 import xarray as xr
 
 import condor
-from condor import estimators as est
-from condor.fields import STATISTICS
-from condor.metrics import normalise_predicted
+from condor.measures import estimators as est
+from condor.data.fields import STATISTICS
+from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
 from condor.studies.reference import reference_ensemble
 from condor.surrogate.checkpoint import load_checkpoint

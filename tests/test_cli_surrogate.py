@@ -16,8 +16,8 @@ import xarray as xr
 from PIL import Image
 
 from condor import cli
-from condor.moulds import input_channels, load_json
-from condor.store import StoreSpec, create_store, open_store, write_inputs, write_sample
+from condor.data.moulds import input_channels, load_json
+from condor.data.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from condor.surrogate.models import PREDICTION_MODES
 from condor.surrogate.predict import predict
@@ -29,7 +29,7 @@ FAST = ["--variant", "unet_l1", "--base", "8", "--batch-size", "4", "--lr", "2e-
 
 
 def write_store(path, ds, box=BOX):
-    """The synthetic samples in a store made by condor.store, as the workflow writes it."""
+    """The synthetic samples in a store made by condor.data.store, as the workflow writes it."""
     n, size = ds.sizes["sample"], ds.sizes["x"]
     spec = StoreSpec(n_moulds=n, pixels=size, seed=0, split=tuple(ds["split"].values.astype(str)),
                      attrs={"pixel_size": box / size, "scene": {"name": "synthetic", "box": box}})

@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from condor.config import SCHEMA_PATH, Config, ConfigError, load_schema
-from condor.moulds import MouldParams
-from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.data.moulds import MouldParams
+from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
@@ -142,7 +142,7 @@ def test_store_spec_records_scene_split_and_data_config():
 def test_tether_free_test_moulds_take_their_own_replicas():
     """simulation.replicas.test_tether_free: the tether-free test moulds (as the generator
     draws them) take it, every other mould its split's count; null leaves them alone."""
-    from condor.moulds import generate_mould
+    from condor.data.moulds import generate_mould
 
     config = Config.default(n_moulds=60, split={"test": 30},
                             moulds={"no_tether_fraction": 0.3},

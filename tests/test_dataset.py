@@ -11,8 +11,8 @@ import pytest
 import torch
 
 import condor
-from condor import dataset
-from condor.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
+from condor.data import reader as dataset
+from condor.data.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
 
 PIXELS = 8
 REPLICAS = (1, 3, 1, 1, 2, 1)

@@ -11,9 +11,9 @@ from condor.design import (agreement, baseline_objectives, confirm, dataset_base
                            replica_ceiling, replica_seeds, search, select_for_confirmation,
                            simulate_designs, spearman)
 from condor.design.analytic import AnalyticPredictor
-from condor.fields import normalise
-from condor.seeds import replica_seed
-from condor.scenes import get_scene
+from condor.data.fields import normalise
+from condor.data.seeds import replica_seed
+from condor.model.scenes import get_scene
 
 SCENE = get_scene("tiny")
 

@@ -1,4 +1,4 @@
-"""The lattice channels (condor.inputs): the simulation's own initial cells, counted against
+"""The lattice channels (condor.data.inputs): the simulation's own initial cells, counted against
 build_lattice, in column units, exact under the box's mirrors; their estimate from masks; the
 masks' sub-pixel coverage; and a surrogate that reads them."""
 
@@ -8,10 +8,10 @@ import shapely
 from shapely.affinity import scale as shapely_scale
 from shapely.geometry import Point, box
 
-from condor import inputs
-from condor.lattice import build_lattice, lattice_sites
-from condor.moulds import Mould, generate_mould, input_channels
-from condor.scenes import get_scene
+from condor.data import inputs
+from condor.model.lattice import build_lattice, lattice_sites
+from condor.data.moulds import Mould, generate_mould, input_channels
+from condor.model.scenes import get_scene
 from condor.surrogate.data import DataError, model_inputs, usable_samples
 from condor.surrogate.physics import estimate_n_cells
 from condor.surrogate.predict import Predictor, run_model

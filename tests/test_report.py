@@ -11,7 +11,7 @@ import pytest
 
 from condor import plots, report
 from condor.config import Config
-from condor.store import StoreSpec, create_store, write_inputs, write_sample
+from condor.data.store import StoreSpec, create_store, write_inputs, write_sample
 
 
 def png(path, seed=0, size=(40, 30)):

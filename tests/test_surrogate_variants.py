@@ -13,7 +13,7 @@ from condor.surrogate.models import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig
 from condor.surrogate.variants import PRESETS, UNET_KEYS, resolve, train_config, workflow_variants
-from condor.store import write_sample
+from condor.data.store import write_sample
 from test_cli_surrogate import write_store
 
 REPO_CONFIGS = ("config/config.yaml", "config/tiny.yaml", "config/paper.yaml")

@@ -21,11 +21,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor.anneal import KERNEL
-from condor.fields import cell_fields, normalise
-from condor.estimators import pad_replicas
-from condor.scenes import get_scene
-from condor.simulate import SimResult
+from condor.model.anneal import KERNEL
+from condor.data.fields import cell_fields, normalise
+from condor.measures.estimators import pad_replicas
+from condor.model.scenes import get_scene
+from condor.model.simulate import SimResult
 from condor.studies.fidelity import fidelity_row
 from condor.studies.paper_reference import budget_tag, pack_mould, run_path
 

@@ -10,7 +10,7 @@ __version__ = "0.1.0"
 def __getattr__(name):
     # `condor.open_dataset` and `condor.dataset` without importing zarr/xarray on `import condor`.
     if name in ("open_dataset", "dataset"):
-        import condor.dataset as dataset
+        import condor.data.reader as dataset
 
         return dataset if name == "dataset" else dataset.open_dataset
     raise AttributeError(f"module 'condor' has no attribute {name!r}")

@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.drawings import load_mould, training_domain_check
-from condor.moulds import MouldParams, input_channels, save_json
-from condor.scenes import PRESETS, Scene, get_scene
-from condor.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
+from condor.data.drawings import load_mould, training_domain_check
+from condor.data.moulds import MouldParams, input_channels, save_json
+from condor.model.scenes import PRESETS, Scene, get_scene
+from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.store import FORMAT, check_metadata, scan_store, set_aside
+from condor.data.store import FORMAT, check_metadata, scan_store, set_aside
 
 
 class CLIError(Exception):
@@ -100,7 +100,7 @@ def _user_mould_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _load_mould(args, scene):
-    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.drawings)."""
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings)."""
     return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
 
 

@@ -24,15 +24,15 @@ from typing import Mapping
 import jsonschema
 import yaml
 
-from condor.anneal import T_INIT, T_RATIO
-from condor.energy import DELTA
-from condor.fields import FIELD_NAMES, window_width
-from condor.lattice import SHELL_KBAR, fcc_layers
-from condor.moulds import MouldParams, is_tether_free
-from condor.scenes import Scene, get_scene
-from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
-from condor.minimise import FTOL
-from condor.store import SPLITS, StoreSpec, assign_splits
+from condor.model.anneal import T_INIT, T_RATIO
+from condor.model.energy import DELTA
+from condor.data.fields import FIELD_NAMES, window_width
+from condor.model.lattice import SHELL_KBAR, fcc_layers
+from condor.data.moulds import MouldParams, is_tether_free
+from condor.model.scenes import Scene, get_scene
+from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.model.minimise import FTOL
+from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.reference import MIN_REPLICAS
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
@@ -51,7 +51,7 @@ MAX_CELLS = 200_000
 #   beyond this fits no common machine; 18x the paper's 14 GiB;
 MAX_FIELD_BYTES = 256 * 2**30
 # - the rasteriser's kernel weights of one sample (2 axes x cells x window x 8 bytes; the
-#   window is 11 sigma in px, condor.fields): within the fields rule's 2 GB (mem_mb 2000);
+#   window is 11 sigma in px, condor.data.fields): within the fields rule's 2 GB (mem_mb 2000);
 #   the paper scene's are 5 MB;
 MAX_KERNEL_BYTES = 2**30
 # - the smallest mould (area_fraction x box^2, l0^2) the generator and the lattice build:

@@ -12,8 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.fields import FIELD_NAMES
-from condor.metrics import BEST_WORST_FIELDS, best_worst
+from condor.data.fields import FIELD_NAMES
+from condor.measures.metrics import BEST_WORST_FIELDS, best_worst
 
 _PLT = None
 
@@ -43,7 +43,7 @@ def save(fig, path, dpi: int = 110) -> Path:
 # --- moulds -----------------------------------------------------------------------------------
 
 def draw_mould(ax, mould, title: bool = True) -> None:
-    """The footprint (filled, holes open) and tethers of a condor.moulds.Mould on an Axes."""
+    """The footprint (filled, holes open) and tethers of a condor.data.moulds.Mould on an Axes."""
     from matplotlib.patches import Circle, PathPatch
     from matplotlib.path import Path as MplPath
 

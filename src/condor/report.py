@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from condor import __version__
-from condor.store import open_store
+from condor.data.store import open_store
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;padding:0 1em;color:#222}
@@ -412,7 +412,7 @@ def _accuracy_section(inp) -> Section:
         paragraph("The truth of every figure is a mould's expected fields: the mean over its "
                   "replicas (the same mould simulated with several seeds). Errors are RMS over "
                   "the 8 normalised fields and the pixels, with the replicas' own noise removed "
-                  "(condor.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
+                  "(condor.measures.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
                   "over moulds."),
         table(main, "Every method: CPU seconds per mould, field error against the expected "
                     "fields [95% interval], the plain error and the moulds scored.", digits=3),

@@ -1,7 +1,7 @@
 """Search the design space with CMA-ES (`cma`), scoring batches of candidates with the surrogate.
 
 One generation = one batch: decode each vector into a mould (condor.design.space), rasterise
-it at the predictor's native size (condor.moulds.input_channels), predict the fields, and
+it at the predictor's native size (condor.data.moulds.input_channels), predict the fields, and
 score the normalised fields with the objective:
 
     score = objective - penalty * constraint violation - repair_weight * repair
@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from condor.moulds import Mould, input_channels
-from condor.scenes import SIGMA_L0
+from condor.data.moulds import Mould, input_channels
+from condor.model.scenes import SIGMA_L0
 
 from .objectives import Objective
 from .space import DesignSpace
@@ -380,7 +380,7 @@ def predict_designs(objective: Objective, moulds: list[Mould], predictor,
                     seed: int = 0, n_cells=None) -> DesignPrediction:
     """Predict the fields and objective of `moulds` (rasterised at the predictor's native
     size). sigma_px: the fields' kernel width in pixels, for objective_spread (default: the
-    scene kernel condor.scenes.SIGMA_L0 at the moulds' box). n_cells: each mould's cell count
+    scene kernel condor.model.scenes.SIGMA_L0 at the moulds' box). n_cells: each mould's cell count
     (its lattice count), for a predictor that takes one."""
     moulds = list(moulds)
     if not moulds:

@@ -33,13 +33,13 @@ import xarray as xr
 from condor import plots
 from condor.design import (confirm, dataset_baseline, default_space, design_table,
                            parse_objective, predict_designs, search, simulate_designs)
-from condor.drawings import write_dxf, write_svg
-from condor.fields import FIELD_NAMES
+from condor.data.drawings import write_dxf, write_svg
+from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
-from condor.lattice import build_lattice
-from condor.moulds import save_json
-from condor.scenes import Scene
-from condor.store import CHANNELS, open_store, quiet_zarr
+from condor.model.lattice import build_lattice
+from condor.data.moulds import save_json
+from condor.model.scenes import Scene
+from condor.data.store import CHANNELS, open_store, quiet_zarr
 from condor.surrogate.predict import Predictor
 
 log = logging.getLogger("condor")
@@ -147,7 +147,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     numbers have one home, the workflow config's `design:` defaults (the packaged schema),
     which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
-    search runs. `your_moulds`: condor.moulds.Mould objects (a user's own designs) scored the
+    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored the
     same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
     predictor = Predictor(checkpoint, device="cpu")
     if predictor.native != scene.pixels or predictor.box is None or \

@@ -22,7 +22,7 @@ import pandas as pd
 
 from condor.config import check_device
 from condor.plots import evaluation_figures, learning_curves
-from condor.store import open_store
+from condor.data.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.evaluate import combine_summaries
 from condor.surrogate.evaluate import evaluate as evaluate_checkpoint

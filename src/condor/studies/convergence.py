@@ -2,7 +2,7 @@
 
 Each configuration (a depth, or a box scale) of a mould is simulated with several seeds: an
 ensemble. Its systematic change is the noise-corrected distance between its mean fields and
-the mean fields of the reference configuration (the deepest / largest; condor.estimators.
+the mean fields of the reference configuration (the deepest / largest; condor.measures.estimators.
 ensemble_distance), per channel, relative to the RMS of the reference's expected fields. It is
 compared with the scatter of one simulation about its own expected fields (the noise). A
 reduction whose systematic change stays below half the scatter of one simulation, on every
@@ -20,13 +20,13 @@ import math
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import FIELD_NAMES, cell_fields, normalise
-from condor.lattice import HALF
-from condor.moulds import generate_mould
+from condor.measures import estimators as est
+from condor.data.fields import FIELD_NAMES, cell_fields, normalise
+from condor.model.lattice import HALF
+from condor.data.moulds import generate_mould
 from condor.progress import progress
-from condor.seeds import study_seed
-from condor.simulate import simulate
+from condor.data.seeds import study_seed
+from condor.model.simulate import simulate
 
 JUSTIFIED_FRACTION = 0.5  # of one simulation's scatter
 SCORED_FIELDS = ("P", "T", "Sx2", "Sy2", "Sz2")

@@ -19,8 +19,8 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import FIELD_NAMES, cell_fields, normalise
+from condor.measures import estimators as est
+from condor.data.fields import FIELD_NAMES, cell_fields, normalise
 
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
@@ -72,8 +72,8 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
     """`replicas` simulations of each mould with `solver` (the dataset's replica seeds, so the
     dataset's own solver reproduces its store): normalised fields (M, R, 8, H, W), energies
     per cell and evaluation-equivalents (M, R); a failed run is NaN."""
-    from condor.seeds import replica_seed
-    from condor.simulate import simulate
+    from condor.data.seeds import replica_seed
+    from condor.model.simulate import simulate
     from condor.studies.paper_reference import mould_of
 
     fields = np.full((len(mould_ids), replicas, 8, scene.pixels, scene.pixels), np.nan)
@@ -102,7 +102,7 @@ def paper_ensemble(scene, dataset_seed: int, folder=None):
     (mould ids, normalised fields (M, R, 8, H, W), energies per cell (M, R), label such as
     'anneal 1e5'), NaN-padded; None when there is none (or the scene is not the preset the
     references were run in) or no mould has 2 runs."""
-    from condor.scenes import PRESETS
+    from condor.model.scenes import PRESETS
     from condor.studies.paper_reference import budget_tag, load_reference, reference_moulds
 
     if scene.name not in PRESETS or scene != PRESETS[scene.name]:

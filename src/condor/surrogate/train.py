@@ -25,7 +25,7 @@ import torch
 from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
-from condor.inputs import INPUT_KINDS
+from condor.data.inputs import INPUT_KINDS
 
 from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
@@ -92,7 +92,7 @@ class TrainConfig:
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
     lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
     epoch, so a resumed run follows the same schedule.
-    inputs: what the network reads of a mould (condor.inputs.INPUT_KINDS): "mask" (the
+    inputs: what the network reads of a mould (condor.data.inputs.INPUT_KINDS): "mask" (the
     paper's two 0/1 masks, the store's `inputs`), "lattice" (its initial cells rasterised,
     the store's `lattice`) or "both" (the four channels).
     """
