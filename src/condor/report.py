@@ -22,7 +22,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor import __version__
+from condor.version import __version__
 from condor.data.store import open_store
 
 CSS = """

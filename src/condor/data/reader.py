@@ -26,7 +26,7 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from condor import __version__
+from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
 from condor.data.store import SPLITS, check_store, open_store
 

@@ -52,7 +52,7 @@ import xarray as xr
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from condor import __version__
+from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
 from condor.data.inputs import LATTICE_CHANNELS
 
