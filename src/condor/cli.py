@@ -14,7 +14,7 @@ import numpy as np
 from condor import plots
 from condor.data.drawings import load_mould, training_domain_check
 from condor.data.moulds import MouldParams, input_channels, save_json
-from condor.model.scenes import PRESETS, Scene, get_scene
+from condor.model.scenes import PRESETS, Scene, get_scene, same_length
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
 from condor.data.store import FORMAT, check_metadata, scan_store, set_aside
@@ -317,7 +317,7 @@ def _checkpoint_scene(predictor):
     a scene of its recorded grid and depth (depth NaN when the checkpoint lacks it)."""
     for scene in PRESETS.values():
         if scene.pixels == predictor.native and predictor.box is not None and \
-                abs(scene.box - predictor.box) < 1e-9 * scene.box:
+                same_length(scene.box, predictor.box):
             return scene
     if predictor.box is None:
         raise CLIError(f"checkpoint {predictor.path!r} records no pixel size: moulds cannot be "

@@ -39,7 +39,7 @@ from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
 from condor.data.moulds import InvalidMouldError, Mould, load_json, validate_mould
-from condor.model.scenes import Scene
+from condor.model.scenes import Scene, same_length
 
 UNITS = ("l0", "mm", "um")  # units a drawing may be in (um is read as mm / 1000)
 FLATTEN_TOLERANCE_L0 = 0.01  # curves become chords with sagitta at most this (l0)
@@ -206,7 +206,7 @@ def training_domain_check(mould: Mould, scene: Scene) -> list[str]:
     grid, get warnings. Simulation needs no such check: the model holds for any mould.
     """
     box = float(scene.box)
-    if not math.isclose(mould.box, box, rel_tol=1e-9):
+    if not same_length(mould.box, box):
         raise OutsideTrainingDomainError(
             f"the mould is placed in a {mould.box:g} l0 box, the {scene.name!r} scene (and a "
             f"surrogate trained on it) has {box:g} l0")
@@ -316,7 +316,7 @@ def _mould_json(path: Path, scene: Scene, fit: bool, units: str | None) -> Mould
         raise DrawingError(f"{path} is a mould file, always in l0; units = {units!r} "
                            "contradicts it")
     mould = load_json(path)
-    if not math.isclose(mould.box, scene.box, rel_tol=1e-9):
+    if not same_length(mould.box, scene.box):
         raise InvalidMouldError(
             f"{path} is a mould for a {mould.box:g} l0 box, the {scene.name!r} scene has "
             f"{scene.box:g} l0: pass the matching scene, or give its outline and tethers "

@@ -28,6 +28,7 @@ from condor.measures.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pe
 from condor.data.fields import cell_fields, normalise
 from condor.data.moulds import Mould, input_channels
 from condor.data.seeds import replica_seed
+from condor.model.scenes import same_length
 from condor.model.simulate import simulate
 
 from .objectives import Objective
@@ -355,7 +356,7 @@ def confirm(result: SearchResult, scene, n_top: int, n_random: int,
     given (designs are numbered by evaluation, so their ids are distinct).
     """
     seed = result.seed if seed is None else int(seed)
-    if scene.pixels != result.pixels or abs(scene.box - result.space.box) > 1e-9 * scene.box:
+    if scene.pixels != result.pixels or not same_length(scene.box, result.space.box):
         raise ValueError(f"scene {scene.name!r} ({scene.box:g} l0, {scene.pixels} px) is not the "
                          f"search's ({result.space.box:g} l0, {result.pixels} px)")
     selection = select_for_confirmation(result, n_top, n_random, seed)

@@ -32,7 +32,7 @@ import pandas as pd
 from tqdm.auto import tqdm
 
 from condor.data.moulds import Mould, input_channels
-from condor.model.scenes import SIGMA_L0
+from condor.model.scenes import SIGMA_L0, same_length
 
 from .objectives import Objective
 from .space import DesignSpace
@@ -128,7 +128,7 @@ def _native_pixels(predictor, space: DesignSpace) -> int:
     if isinstance(pixels, bool) or not isinstance(pixels, (int, np.integer)) or pixels < 1:
         raise DesignSearchError(f"predictor {predictor!r} has no native grid size (`native`)")
     box = getattr(predictor, "box", None)
-    if box is not None and not math.isclose(float(box), space.box, rel_tol=1e-6):
+    if box is not None and not same_length(box, space.box):
         raise DesignSearchError(f"the predictor was trained on a {float(box):g} l0 box but the "
                                 f"design space's box is {space.box:g} l0: use the scene the "
                                 "checkpoint was trained on")

@@ -33,7 +33,7 @@ from condor.config import Config
 from condor.data.fields import cell_fields
 from condor.data.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
 from condor.progress import progress
-from condor.model.scenes import Scene
+from condor.model.scenes import Scene, same_length
 from condor.data.seeds import replica_seed
 from condor.model.simulate import SimResult, simulate, warm_up
 from condor.data.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
@@ -184,7 +184,7 @@ def rasterise_result(result: SimResult, scene: Scene) -> np.ndarray:
     """The 8 fields of a result on `scene`'s grid; SceneMismatchError when the result was
     simulated for another box."""
     recorded = result.info.get("scene")
-    if recorded is not None and abs(float(recorded["box"]) - scene.box) > 1e-9 * scene.box:
+    if recorded is not None and not same_length(recorded["box"], scene.box):
         raise SceneMismatchError(
             f"the simulation belongs to scene {recorded.get('name')!r} (box {recorded['box']:g} "
             f"l0), not {scene.name!r} (box {scene.box:g} l0): pass --scene {recorded.get('name')}")

@@ -38,7 +38,7 @@ from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
 from condor.model.lattice import build_lattice
 from condor.data.moulds import save_json
-from condor.model.scenes import Scene
+from condor.model.scenes import Scene, same_length
 from condor.data.store import CHANNELS, open_store, quiet_zarr
 from condor.surrogate.predict import Predictor
 
@@ -151,7 +151,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
     predictor = Predictor(checkpoint, device="cpu")
     if predictor.native != scene.pixels or predictor.box is None or \
-            abs(predictor.box - scene.box) > 1e-9 * scene.box:
+            not same_length(predictor.box, scene.box):
         raise DesignOutputError(f"checkpoint {str(checkpoint)!r} was trained on {predictor.native} "
                                 f"px of box {predictor.box} l0, not the {scene.name!r} scene")
     parsed = parse_objective(objective, pixels=scene.pixels, max_extent=scene.max_extent)
