@@ -21,6 +21,7 @@ import numpy as np
 import pandas as pd
 
 from condor.measures import estimators as est
+from condor.measures.bars import SAME_STATES
 from condor.data.fields import FIELD_NAMES, cell_fields, normalise
 from condor.model.lattice import HALF
 from condor.data.moulds import generate_mould
@@ -28,7 +29,6 @@ from condor.progress import progress
 from condor.data.seeds import study_seed
 from condor.model.simulate import simulate
 
-JUSTIFIED_FRACTION = 0.5  # of one simulation's scatter
 SCORED_FIELDS = ("P", "T", "Sx2", "Sy2", "Sz2")
 
 
@@ -62,7 +62,7 @@ def _rows(study, mould_id, runs: dict, ref_value) -> list[dict]:
                "cpu_s": seconds, "reference": bool(value == ref_value)}
         row.update({f"change_{f}": float(v) for f, v in zip(FIELD_NAMES, rel)})
         row.update({f"noise_{f}": float(v) for f, v in zip(FIELD_NAMES, noise)})
-        row["justified"] = bool(all(row[f"change_{c}"] <= JUSTIFIED_FRACTION * row[f"noise_{c}"]
+        row["justified"] = bool(all(row[f"change_{c}"] <= SAME_STATES * row[f"noise_{c}"]
                                     for c in SCORED_FIELDS))
         rows.append(row)
     return rows

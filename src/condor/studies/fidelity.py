@@ -20,11 +20,11 @@ import numpy as np
 import pandas as pd
 
 from condor.measures import estimators as est
+from condor.measures.bars import SAME_STATES
 from condor.data.fields import FIELD_NAMES, cell_fields, normalise
 
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
-CONVERGED_FRACTION = 0.5  # the bar: distance_hi at most this x the replica noise
 _P, _ORIENT = FIELD_NAMES.index("P"), [FIELD_NAMES.index(f) for f in ("Sx2", "Sy2", "Sz2")]
 
 
@@ -63,7 +63,7 @@ def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
         row.update(energy_difference_pct=mean, energy_difference_pct_lo=lo,
                    energy_difference_pct_hi=hi,
                    energy_difference_pct_max=float(ratio[np.argmax(np.abs(ratio))]))
-    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
     return row
 
 
@@ -161,6 +161,6 @@ def prediction_row(method: str, scene: str, reference: str, predicted, ref_field
     for name, values in zip(("sx2", "sy2", "sz2"), diff.T):
         row[f"{name}_difference"] = float(np.mean(values))
         row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
-    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
     row["moulds"] = " ".join(map(str, moulds))
     return row
