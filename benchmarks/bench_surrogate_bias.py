@@ -28,7 +28,7 @@ from bench_surrogate_paired import predict_replica_moulds  # noqa: E402
 from bench_surrogate_study import statistics_of, study_dataset  # noqa: E402
 from condor.measures.estimators import statistic_agreement  # noqa: E402
 from condor.data.fields import STATISTICS  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
+from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
 
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 MAD_TO_SD = 1.4826  # a normal's standard deviation over its median absolute deviation

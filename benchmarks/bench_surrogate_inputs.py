@@ -35,7 +35,7 @@ from bench_surrogate_study import evaluate_checkpoint, study_dataset  # noqa: E4
 from condor.data import inputs as model_inputs  # noqa: E402
 from condor.data.moulds import input_channels  # noqa: E402
 from condor.stages.dataset import load_moulds  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
+from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 

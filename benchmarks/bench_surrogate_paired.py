@@ -22,7 +22,7 @@ import torch
 
 from condor.data.reader import open_dataset
 from condor.measures.estimators import bootstrap_interval, mse_against_expected
-from condor.surrogate.data import FIELD_NAMES, model_inputs
+from condor.surrogate.samples import FIELD_NAMES, model_inputs
 from condor.surrogate.predict import Predictor
 
 

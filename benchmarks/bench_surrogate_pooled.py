@@ -44,7 +44,7 @@ from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
 from condor.studies.reference import reference_ensemble
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.data import usable_samples
+from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import resolve, train_config

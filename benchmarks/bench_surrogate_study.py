@@ -36,7 +36,7 @@ from condor.data.fields import mould_statistics
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.data import FIELD_NAMES, model_inputs, usable_samples
+from condor.surrogate.samples import FIELD_NAMES, model_inputs, usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import train_config

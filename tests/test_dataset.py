@@ -95,7 +95,7 @@ def test_card_counts_and_core_hours_match_the_store(store, tmp_path):
 def test_training_data_names_a_corrupt_or_lost_sample(store, tmp_path):
     import shutil
 
-    from condor.surrogate.data import DataError, SampleSource
+    from condor.surrogate.samples import DataError, SampleSource
 
     copy = tmp_path / "copy.zarr"
     shutil.copytree(store, copy)

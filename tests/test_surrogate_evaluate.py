@@ -10,7 +10,7 @@ from condor.measures.metrics import normalise_predicted
 
 from condor.surrogate.baselines import MaskedMeanBaseline, MouldBlurBaseline, gaussian_blur
 from condor.surrogate.checkpoint import save_checkpoint
-from condor.surrogate.data import FIELD_NAMES, FieldScaling
+from condor.surrogate.samples import FIELD_NAMES, FieldScaling
 from condor.surrogate.evaluate import (best_worst, correlation_table, evaluate, mae_frame,
                                        pearson_r, statistics_frame)
 from condor.surrogate.models import UNetConfig, paper_generator

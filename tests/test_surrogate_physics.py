@@ -14,7 +14,7 @@ from condor.data.moulds import generate_mould, save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels, z_of)
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
-from condor.surrogate.data import FIELD_NAMES, apply_symmetry, usable_samples
+from condor.surrogate.samples import FIELD_NAMES, apply_symmetry, usable_samples
 from condor.surrogate.models import UNetConfig, UNetGenerator
 from condor.data.fields import mould_statistics
 from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,

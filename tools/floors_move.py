@@ -1,6 +1,7 @@
 """Issue 30, item 4: the floors of docs/architecture.md as folders of src/condor.
 
-A pure move: `git mv` of each module below, a package `__init__.py` (a one-line docstring)
+A pure move: `git mv` of each module below (and surrogate/data.py to surrogate/samples.py,
+a name no reader confuses with the data floor), a package `__init__.py` (a one-line docstring)
 for each new folder, and a rewrite of every reference to a moved module in the tracked text
 files (imports, `condor.<module>` names, `src/condor/<module>.py` paths). Nothing else
 changes. Run from the repository root on a clean tree, then commit:
@@ -35,6 +36,8 @@ MOVES = {
     "estimators": "measures.estimators", "metrics": "measures.metrics",
     # a study
     "stability": "studies.stability",
+    # within a floor: the surrogate's view of the samples, not to be confused with data/
+    "surrogate.data": "surrogate.samples",
 }
 PACKAGES = {
     "model": "The model: scenes, the FCC lattice and walls, the CONDOR energy, its solvers, one "
@@ -62,7 +65,7 @@ def move() -> None:
             init.write_text(f'"""{text}"""\n')
             git("add", str(init.relative_to(ROOT)))
     for old, new in MOVES.items():
-        src = PKG / f"{old}.py"
+        src = PKG / (old.replace(".", "/") + ".py")
         dst = PKG / (new.replace(".", "/") + ".py")
         if src.exists() and not dst.exists():
             git("mv", str(src.relative_to(ROOT)), str(dst.relative_to(ROOT)))
@@ -94,14 +97,21 @@ def _split_from_condor(match: re.Match) -> str:
 def rewrite(text: str, path: str) -> str:
     text = FROM_CONDOR.sub(_split_from_condor, text)
     for old, new in MOVES.items():
+        dotted = re.escape(old)
         if old in ALIASED:  # imports only: `condor.dataset.x` in prose and code is the alias
-            text = re.sub(rf"(?<![\w.])(from|import) condor\.{old}\b", rf"\1 condor.{new}", text)
+            text = re.sub(rf"(?<![\w.])(from|import) condor\.{dotted}\b", rf"\1 condor.{new}",
+                          text)
         else:
-            text = re.sub(rf"(?<![\w.])condor\.{old}\b", f"condor.{new}", text)
-        text = re.sub(rf"(?<![\w.])condor/{old}\.py\b", f"condor/{new.replace('.', '/')}.py", text)
+            text = re.sub(rf"(?<![\w.])condor\.{dotted}\b", f"condor.{new}", text)
+        text = re.sub(rf"(?<![\w.])condor/{re.escape(old.replace('.', '/'))}\.py\b",
+                      f"condor/{new.replace('.', '/')}.py", text)
         if path.startswith("src/condor/") and path.count("/") == 3:  # a subpackage's module
-            text = re.sub(rf"^(\s*)from \.\.{old} import", rf"\1from ..{new} import", text,
+            text = re.sub(rf"^(\s*)from \.\.{dotted} import", rf"\1from ..{new} import", text,
                           flags=re.M)
+            package, _, module = old.rpartition(".")
+            if package and path.startswith(f"src/condor/{package}/"):  # its own package
+                text = re.sub(rf"^(\s*)from \.{module} import",
+                              rf"\1from .{new.rpartition('.')[2]} import", text, flags=re.M)
     return text
 
 

@@ -36,7 +36,7 @@ from condor.studies.ladder import ladder as ladder_study
 from condor.studies.reference import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
 from condor.surrogate.baselines import fit_baselines
-from condor.surrogate.data import dataset_pixel_size, usable_samples
+from condor.surrogate.samples import dataset_pixel_size, usable_samples
 from condor.surrogate.predict import Predictor
 
 log = logging.getLogger("condor")

@@ -17,7 +17,7 @@ from condor.measures.metrics import (best_worst, correlation_table, mae_frame,  
                             paper_r, statistics_frame)
 
 from .baselines import fit_baselines
-from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
+from .samples import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
 from .predict import Predictor
 
 

@@ -57,7 +57,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from .data import FIELD_NAMES, PAIRED_FIELDS
+from .samples import FIELD_NAMES, PAIRED_FIELDS
 
 N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)

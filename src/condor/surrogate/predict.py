@@ -15,7 +15,7 @@ from condor.measures.metrics import density_sums, normalise_predicted
 from condor.data.store import quiet_zarr
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
-from .data import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
+from .samples import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
                    resample_fields, resample_inputs)
 from .models import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells

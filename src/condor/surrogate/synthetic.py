@@ -9,7 +9,7 @@ import numpy as np
 import xarray as xr
 
 from .baselines import gaussian_blur
-from .data import CHANNEL_NAMES, FIELD_NAMES
+from .samples import CHANNEL_NAMES, FIELD_NAMES
 
 # Per field: weight of blurred occupancy, of blurred tethers, of occupancy * x/size.
 _MIX = np.array([[0.8, 0.4, 0.0], [0.1, 2.0, 0.0], [0.2, -0.3, 0.5], [0.5, -0.1, -0.4],

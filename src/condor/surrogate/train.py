@@ -27,7 +27,7 @@ from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          scaling_from_checkpoint)
 from condor.data.inputs import INPUT_KINDS
 
-from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
+from .samples import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
                    dataset_pixel_size, INPUT_VARIABLES, model_inputs, n_input_channels,
                    usable_samples)
