@@ -236,7 +236,7 @@ class Predictor:
                 lattice = self.estimate_lattice(batch)
             else:
                 lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
-        by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (data.py)
+        by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (samples.py)
         for name in ("stress", "stress_tensor"):
             if name in INPUT_VARIABLES[self.inputs_kind]:
                 by_variable[name] = stress_channels(batch, name == "stress_tensor")
