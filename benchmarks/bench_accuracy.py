@@ -1,7 +1,7 @@
 """Every simulation method against the expected fields, outside the workflow (any scene).
 
 For moulds 0..n-1 of `generate_mould(seed, id, scene.box)`: R replicas with the dataset's solver
-(the reference ensemble, condor.seeds.replica_seed), every method of condor.studies.sweep
+(the reference ensemble, condor.data.seeds.replica_seed), every method of condor.studies.sweep
 (long anneal, short anneals, minimiser, converged hybrid) once per mould, then
 condor.studies.accuracy: field error against the expected fields with the noise removed,
 interval, the single-simulation ceiling. Writes results/benchmarks/accuracy_<scene>.csv and
@@ -22,10 +22,10 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from condor import plots  # noqa: E402
-from condor.fields import cell_fields  # noqa: E402
-from condor.scenes import get_scene  # noqa: E402
-from condor.seeds import replica_seed  # noqa: E402
-from condor.simulate import warm_up  # noqa: E402
+from condor.data.fields import cell_fields  # noqa: E402
+from condor.model.scenes import get_scene  # noqa: E402
+from condor.data.seeds import replica_seed  # noqa: E402
+from condor.model.simulate import warm_up  # noqa: E402
 from condor.stages.dataset import make_mould, simulate_mould  # noqa: E402
 from condor.studies import accuracy, reference, sweep  # noqa: E402
 

@@ -5,9 +5,9 @@ For each mould, ensembles of replicas of
     tight FIRE (`--ftol`, default 1e-5), so that every rung ends at a minimum, and
   * the quench: solver "hybrid" with its defaults (a short anneal, then FIRE), the name the
     stored tables in docs/data give it. It was the simulator's default when the ladder was
-    measured; the default is now `condor.simulate.DEFAULT_SOLVER` ("lbfgs"), which samples
+    measured; the default is now `condor.model.simulate.DEFAULT_SOLVER` ("lbfgs"), which samples
     the hybrid's ensemble (docs/model.md, "The same minimum?"),
-with the store's replica seeds (`condor.seeds.replica_seed`): replica r of every method
+with the store's replica seeds (`condor.data.seeds.replica_seed`): replica r of every method
 starts from the same random orientations. Each ensemble's mean normalised fields estimate its
 expected fields; the noise-corrected distance between two ensembles' means
 (`estimators.ensemble_distance`) is set against the spread of one simulation about its
@@ -50,18 +50,18 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from condor import anneal as anneal_mod  # noqa: E402
-from condor.energy import DELTA, cell_tension, lattice_energy, random_orientations  # noqa: E402
-from condor.estimators import (  # noqa: E402
+from condor.model import anneal as anneal_mod  # noqa: E402
+from condor.model.energy import DELTA, cell_tension, lattice_energy, random_orientations  # noqa: E402
+from condor.measures.estimators import (  # noqa: E402
     bootstrap_interval, ensemble_distance, noise_ceiling, root_mean,
 )
-from condor.fields import FIELD_NAMES, cell_fields, normalise  # noqa: E402
-from condor.lattice import build_lattice, signed_volumes  # noqa: E402
-from condor.minimise import minimise  # noqa: E402
-from condor.moulds import generate_mould  # noqa: E402
-from condor.scenes import get_scene  # noqa: E402
-from condor.seeds import replica_seed  # noqa: E402
-from condor.simulate import SimResult, diagnose, simulate, simulate_lattice, warm_up  # noqa: E402
+from condor.data.fields import FIELD_NAMES, cell_fields, normalise  # noqa: E402
+from condor.model.lattice import build_lattice, signed_volumes  # noqa: E402
+from condor.model.minimise import minimise  # noqa: E402
+from condor.data.moulds import generate_mould  # noqa: E402
+from condor.model.scenes import get_scene  # noqa: E402
+from condor.data.seeds import replica_seed  # noqa: E402
+from condor.model.simulate import SimResult, diagnose, simulate, simulate_lattice, warm_up  # noqa: E402
 
 DATASET_SEED = 2026  # the default config's global seed: moulds 7, 12, 15, 47 are test moulds
 HYBRID = "hybrid"

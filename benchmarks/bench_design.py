@@ -8,7 +8,7 @@ For the scene of the checkpoint (or --scene without one), prints medians over --
     symmetrisation (the checkpoint's setting is what `condor design` uses), at the torch
     thread counts in --threads (designs per minute, and the predictor's share of the time);
   * with --simulate N: seconds per confirmation simulation of N designs (the simulator's
-    default solver, condor.simulate.DEFAULT_SOLVER, as design confirmation uses).
+    default solver, condor.model.simulate.DEFAULT_SOLVER, as design confirmation uses).
 
     python benchmarks/bench_design.py --checkpoint model.pt --budget 600 --threads 1 2
 """
@@ -23,8 +23,8 @@ import numpy as np
 
 from condor.design import default_space, parse_objective, search
 from condor.design.analytic import AnalyticPredictor
-from condor.moulds import input_channels
-from condor.scenes import PRESETS, get_scene
+from condor.data.moulds import input_channels
+from condor.model.scenes import PRESETS, get_scene
 
 
 class TimedPredictor:
@@ -115,7 +115,7 @@ def main():
                       f"{100 * share:.0f}% of the wall time in the predictor")
 
     if args.simulate:
-        from condor.simulate import DEFAULT_SOLVER, simulate, warm_up
+        from condor.model.simulate import DEFAULT_SOLVER, simulate, warm_up
 
         warm_up()
         seconds, cpu = [], []

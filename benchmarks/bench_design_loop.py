@@ -20,7 +20,7 @@ import xarray as xr
 
 from condor.design import (confirm, dataset_baseline, default_space, design_table,
                            parse_objective, search)
-from condor.scenes import PRESETS
+from condor.model.scenes import PRESETS
 from condor.surrogate.predict import Predictor
 
 

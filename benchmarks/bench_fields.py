@@ -1,6 +1,6 @@
 """Benchmark rasterisation: 10,000 cells into 8 channels at 256 px (paper) and 64 px.
 
-Compares condor.fields.rasterise (numba, grid laid out (y, x, channel)) with two
+Compares condor.data.fields.rasterise (numba, grid laid out (y, x, channel)) with two
 alternatives measured in the same run: a numba kernel on a (channel, y, x) grid and the best
 numpy route found (dense separable weights, one matrix product per channel). Prints medians
 and ratios. Target: <= 50 ms median at 256 px.
@@ -21,8 +21,8 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numba
 import numpy as np
 
-from condor import fields as F
-from condor.scenes import PAPER_BOX, SIGMA_L0
+from condor.data import fields as F
+from condor.model.scenes import PAPER_BOX, SIGMA_L0
 
 
 @numba.njit(cache=True)

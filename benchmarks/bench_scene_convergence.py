@@ -18,8 +18,8 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import pandas as pd  # noqa: E402
 
 from condor import plots  # noqa: E402
-from condor.scenes import get_scene  # noqa: E402
-from condor.simulate import warm_up  # noqa: E402
+from condor.model.scenes import get_scene  # noqa: E402
+from condor.model.simulate import warm_up  # noqa: E402
 from condor.stages.dataset import make_mould  # noqa: E402
 from condor.studies.convergence import convergence  # noqa: E402
 

@@ -28,15 +28,15 @@ from pathlib import Path
 import numpy as np
 from shapely.geometry import box
 
-from condor import fields as F
-from condor.anneal import anneal
-from condor.energy import DELTA, bond_energies, energy_gradient, random_orientations
-from condor.lattice import build_lattice
-from condor.lbfgs import minimise_lbfgs
-from condor.moulds import generate_mould
-from condor.scenes import PAPER_BOX, get_scene
-from condor.seeds import replica_seed
-from condor.simulate import DEFAULT_SOLVER, simulate, warm_up
+from condor.data import fields as F
+from condor.model.anneal import anneal
+from condor.model.energy import DELTA, bond_energies, energy_gradient, random_orientations
+from condor.model.lattice import build_lattice
+from condor.model.lbfgs import minimise_lbfgs
+from condor.data.moulds import generate_mould
+from condor.model.scenes import PAPER_BOX, get_scene
+from condor.data.seeds import replica_seed
+from condor.model.simulate import DEFAULT_SOLVER, simulate, warm_up
 
 
 def median_time(fn, repeats=7):
@@ -124,7 +124,7 @@ def lbfgs_convergence(scene_name: str, seed: int) -> dict:
 
 
 def wall_residuals(solvers, seeds=range(4)) -> list[dict]:
-    from condor.walls import residual_forces
+    from condor.model.walls import residual_forces
 
     polygon, posts = box(0, 0, 20, 10), np.array([[5.0, 5.0, 1.0], [15.0, 5.0, 1.0]])
     lat = build_lattice(polygon, posts, 4.0)

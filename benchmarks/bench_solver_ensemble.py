@@ -1,16 +1,16 @@
 """Do two solvers reach the same minimum? Cost, energy and expected fields over an ensemble.
 
-Each solver runs moulds 0..M-1 of dataset seed S (condor.moulds.generate_mould(S, i, scene box))
-with R replicas each, seeded as the store seeds them (condor.seeds.replica_seed; replica 0 is
+Each solver runs moulds 0..M-1 of dataset seed S (condor.data.moulds.generate_mould(S, i, scene box))
+with R replicas each, seeded as the store seeds them (condor.data.seeds.replica_seed; replica 0 is
 the dataset's own sample). Per solver it prints: evaluation-equivalents (median, max;
 info["evaluations"]), CPU seconds, the largest residual force, and
 against the reference solver (the first one): the median over runs of E/cell over the
 reference's mean E/cell of the same mould, minus 1, and per mould the ratio of the two
 ensembles' mean E/cell minus 1 (its median over moulds, with a bootstrap interval),
 and the noise-corrected distance between the two ensembles' expected normalised fields
-(condor.estimators.ensemble_distance, RMS over moulds, with its bootstrap interval) beside the
+(condor.measures.estimators.ensemble_distance, RMS over moulds, with its bootstrap interval) beside the
 replica noise (the RMS error of one simulation against the expected fields,
-condor.estimators.noise_ceiling) and the resolution of the distance (sqrt(s_a^2/R_a + s_b^2/R_b)).
+condor.measures.estimators.noise_ceiling) and the resolution of the distance (sqrt(s_a^2/R_a + s_b^2/R_b)).
 
 The other solvers run 2R replicas: 0..R-1 share the reference's seeds (the same starts) and
 give the paired energy comparison (mean over r of E_other / E_ref of the same start, minus 1,
@@ -32,12 +32,12 @@ from pathlib import Path
 
 import numpy as np
 
-from condor import estimators
-from condor.fields import normalise
-from condor.moulds import generate_mould
-from condor.scenes import get_scene
-from condor.seeds import replica_seed
-from condor.simulate import simulate
+from condor.measures import estimators
+from condor.data.fields import normalise
+from condor.data.moulds import generate_mould
+from condor.model.scenes import get_scene
+from condor.data.seeds import replica_seed
+from condor.model.simulate import simulate
 from condor.stages.dataset import rasterise_result
 
 

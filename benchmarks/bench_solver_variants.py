@@ -1,7 +1,7 @@
 """Solver variants side by side: evaluations to reach a force tolerance, and the energy there.
 
 Every variant starts from the same state as `simulate` (the lattice, isotropic random
-orientations of the store's replica seeds, condor.seeds.replica_seed) and runs to --ftol; its
+orientations of the store's replica seeds, condor.data.seeds.replica_seed) and runs to --ftol; its
 trace (energy and largest residual force per evaluation) gives, for each tolerance in --report, the
 evaluation-equivalents spent when the largest residual force first fell below it and the
 energy per cell there (what a run with that ftol returns). Energies are compared with the
@@ -9,15 +9,15 @@ reference ensemble of bench_solver_ensemble when its cache holds the mould (--re
 mean E/cell of its replicas), else with the first variant.
 
 Variants (--variants, any of):
-  lbfgs           condor.lbfgs as in simulate (memory 10, bond-stiffness preconditioner)
+  lbfgs           condor.model.lbfgs as in simulate (memory 10, bond-stiffness preconditioner)
   lbfgs-plain     the same without the preconditioner (H0 = gamma I)
   lbfgs-m5, lbfgs-m20   memory 5 or 20 pairs
   anneal30+lbfgs  30 moves per cell of the paper's anneal first (counted: bonds evaluated)
   coarse+lbfgs    coarse-to-fine: L-BFGS on the network of shells 1-2 only (a third of the
                   bonds, counted as a third of an evaluation) to max force 1e-2, then the full one
-  fire            the legacy FIRE of condor.minimise (soft walls; its own force measure)
+  fire            the legacy FIRE of condor.model.minimise (soft walls; its own force measure)
   fire2           FIRE 2.0 (Guenole et al. 2020: delayed dt growth, half step back on uphill,
-                  mixing after the Euler update) with the exact walls of condor.walls
+                  mixing after the Euler update) with the exact walls of condor.model.walls
 
     OPENBLAS_NUM_THREADS=1 python benchmarks/bench_solver_variants.py --scene default \
         --moulds 8 --replicas 2 --variants lbfgs lbfgs-plain fire2
@@ -34,16 +34,16 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from condor.anneal import anneal
-from condor.energy import DELTA, random_orientations
-from condor.lattice import build_lattice
-from condor.lbfgs import minimise_lbfgs
-from condor.minimise import minimise
-from condor.moulds import generate_mould
-from condor.scenes import get_scene
-from condor.seeds import replica_seed
-from condor.walls import SLIDE, hold_on_walls, place, project_state
-from condor.lbfgs import _gradients
+from condor.model.anneal import anneal
+from condor.model.energy import DELTA, random_orientations
+from condor.model.lattice import build_lattice
+from condor.model.lbfgs import minimise_lbfgs
+from condor.model.minimise import minimise
+from condor.data.moulds import generate_mould
+from condor.model.scenes import get_scene
+from condor.data.seeds import replica_seed
+from condor.model.walls import SLIDE, hold_on_walls, place, project_state
+from condor.model.lbfgs import _gradients
 
 MAX_EVALUATIONS = 30000
 

@@ -5,7 +5,7 @@ fitted on the val split removes it (docs/surrogate.md "In the default run").
         --replicas REPLICAS.npz CHECKPOINT [CHECKPOINT ...] [--out CSV]
 
 Per checkpoint and statistic: r and bias (median of predicted / replica mean - 1) against the
-test moulds' replica means (condor.estimators.statistic_agreement); the MAD (x 1.4826) of the
+test moulds' replica means (condor.measures.estimators.statistic_agreement); the MAD (x 1.4826) of the
 per-mould ratios and the median's standard error from it (1.2533 MAD / sqrt(M), the
 normal approximation); the slope of log(replica mean) on log(predicted) (above 1: the
 predictions are shrunk towards the average); and two corrections fitted on the val split's
@@ -26,9 +26,9 @@ import pandas as pd
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sibling benchmarks it builds on
 from bench_surrogate_paired import predict_replica_moulds  # noqa: E402
 from bench_surrogate_study import statistics_of, study_dataset  # noqa: E402
-from condor.estimators import statistic_agreement  # noqa: E402
-from condor.fields import STATISTICS  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
+from condor.measures.estimators import statistic_agreement  # noqa: E402
+from condor.data.fields import STATISTICS  # noqa: E402
+from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
 
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 MAD_TO_SD = 1.4826  # a normal's standard deviation over its median absolute deviation

@@ -28,8 +28,8 @@ import numpy as np
 import torch
 
 from condor.config import Config
-from condor.dataset import open_dataset
-from condor.surrogate.data import usable_samples
+from condor.data.reader import open_dataset
+from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train
 from condor.surrogate.variants import train_config, workflow_variants

@@ -13,7 +13,7 @@ shows (docs/data/surrogate_curve_*.csv) from the rows of bench_surrogate_study.p
     # the tables
     PYTHONPATH=src python benchmarks/bench_surrogate_curves.py tables --out DIR --docs docs/data
 
-Curves share the default's settings (config/config.yaml, variant `unet`) and change one thing:
+Curves share the default's settings (the `unet` preset, condor.surrogate.variants) and change one thing:
 - data: the first n training moulds of BIG_STORE (built by the workflow with
   `--config n_moulds=960`: the same seed gives the same first moulds), n in --sizes, each
   trained for the same number of optimiser steps as the default (epochs = default epochs x
@@ -37,7 +37,6 @@ from pathlib import Path
 
 import pandas as pd
 
-from condor.config import Config
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
@@ -50,8 +49,11 @@ COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms"
 
 
 def default_settings(variant: str = "unet") -> dict:
-    # to_dict: plain (JSON-safe) values, as bench_surrogate_study.py --settings takes them
-    return Config.load(REPO / "config" / "config.yaml").to_dict()["surrogate"]["models"][variant]
+    # the registry's preset (condor.surrogate.variants.PRESETS) as plain (JSON-safe) values, as
+    # bench_surrogate_study.py --settings takes them
+    from condor.surrogate.variants import resolve
+
+    return json.loads(json.dumps(resolve(variant)))
 
 
 def study(name, settings, args, store, extra=()):

@@ -23,8 +23,8 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from condor.dataset import open_dataset  # noqa: E402
-from condor.surrogate.data import FIELD_NAMES  # noqa: E402
+from condor.data.reader import open_dataset  # noqa: E402
+from condor.surrogate.samples import FIELD_NAMES  # noqa: E402
 from condor.surrogate.predict import Predictor  # noqa: E402
 
 STATS = ("mean_P", "n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2", "mean_T_norm")

@@ -1,5 +1,5 @@
 """What the surrogate reads of a mould, measured: the paper's 0/1 masks, their sub-pixel
-coverage, the lattice channels (condor.inputs), or the lattice channels estimated from the
+coverage, the lattice channels (condor.data.inputs), or the lattice channels estimated from the
 masks; the default variant otherwise, trained on the same moulds, scored against the expected
 fields of the replica moulds, paired against the first kind (docs/surrogate.md "The inputs").
 
@@ -10,7 +10,7 @@ fields of the replica moulds, paired against the first kind (docs/surrogate.md "
 
 KIND is mask | coverage | lattice | estimated | both (masks and lattice channels, 4 input
 channels). The network reads the store variables of its TrainConfig.inputs; coverage and estimated replace the store's `lattice` in memory by
-`condor.moulds.input_channels(mould, pixels, 8)` and `condor.inputs.estimate_lattice_channels`
+`condor.data.moulds.input_channels(mould, pixels, 8)` and `condor.data.inputs.estimate_lattice_channels`
 of the masks, so every kind runs the same code. Each run writes DIR/KIND.pt and
 DIR/KIND_pred.npz (raw predictions of the replica moulds); `table` prints and writes
 DIR/inputs_paired.csv (field error ratios against the first kind, bench_surrogate_paired's
@@ -32,15 +32,16 @@ import torch
 sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sibling benchmarks it builds on
 from bench_surrogate_paired import field_errors, paired_rows, predict_replica_moulds  # noqa: E402
 from bench_surrogate_study import evaluate_checkpoint, study_dataset  # noqa: E402
-from condor import inputs as model_inputs  # noqa: E402
-from condor.moulds import input_channels  # noqa: E402
+from condor.data import inputs as model_inputs  # noqa: E402
+from condor.data.moulds import input_channels  # noqa: E402
 from condor.stages.dataset import load_moulds  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
+from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402
 
 KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics", "mechanics_shear")
-# the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
+# the recipe of the inputs study, as it ran (the default of its day, not today's `unet` preset:
+# condor.surrogate.variants.PRESETS), but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
            "lr_schedule": "cosine", "batch_size": 8, "lr": 0.002, "augment": True,

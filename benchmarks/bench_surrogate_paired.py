@@ -6,7 +6,7 @@ separate intervals of bench_surrogate_study.py).
     PYTHONPATH=src python benchmarks/bench_surrogate_paired.py --store STORE \\
         --replicas REPLICAS.npz REF.pt OTHER.pt [MORE.pt ...] [--csv OUT.csv]
 
-Field error: noise-corrected squared error against the replica mean (condor.estimators),
+Field error: noise-corrected squared error against the replica mean (condor.measures.estimators),
 each field in units of its RMS over the replicas, as in bench_surrogate_study.py; a ratio
 below 1 means the checkpoint is closer to the expected fields than REF. Per field too.
 """
@@ -20,9 +20,9 @@ import numpy as np
 import pandas as pd
 import torch
 
-from condor.dataset import open_dataset
-from condor.estimators import bootstrap_interval, mse_against_expected
-from condor.surrogate.data import FIELD_NAMES, model_inputs
+from condor.data.reader import open_dataset
+from condor.measures.estimators import bootstrap_interval, mse_against_expected
+from condor.surrogate.samples import FIELD_NAMES, model_inputs
 from condor.surrogate.predict import Predictor
 
 

@@ -1,6 +1,6 @@
 """A training recipe measured against the expected organisation of many moulds.
 
-`train`: the workflow's default variant (config/config.yaml, `unet`) with --settings overrides,
+`train`: the default variant (the `unet` preset, condor.surrogate.variants) with --settings overrides,
 trained on a store's training split (--extra-train: and the training moulds of other stores
 of the same scene after them, a training set larger than the workflow's budget; --n-train: the
 first n of them, the rest left out), validated on its val split. `score`: checkpoints
@@ -19,7 +19,7 @@ surrogate's largest errors.
         --out CSV DIR/NAME.pt [DIR/NAME.pt ...]
 
 Every store must share the scene (moulds with fewer replicas are NaN-padded, as in the
-accuracy stage: condor.estimators). Predictions are cached
+accuracy stage: condor.measures.estimators). Predictions are cached
 beside each checkpoint (NAME_pooled.npz, keyed by the stores), so scoring more checkpoints
 later re-predicts only the new ones.
 """
@@ -38,24 +38,23 @@ import torch
 import xarray as xr
 
 import condor
-from condor import estimators as est
-from condor.config import Config
-from condor.fields import STATISTICS
-from condor.metrics import normalise_predicted
+from condor.measures import estimators as est
+from condor.data.fields import STATISTICS
+from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
 from condor.studies.reference import reference_ensemble
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.data import usable_samples
+from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
-from condor.surrogate.variants import train_config
+from condor.surrogate.variants import resolve, train_config
 
 REPO = Path(__file__).resolve().parents[1]
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 
 
 def default_settings() -> dict:
-    return Config.load(REPO / "config" / "config.yaml").to_dict()["surrogate"]["models"]["unet"]
+    return resolve("unet")  # the default preset (condor.surrogate.variants.PRESETS)
 
 
 def run_training(args) -> None:

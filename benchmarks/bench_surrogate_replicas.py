@@ -1,6 +1,6 @@
 """Replicas of a dataset's test moulds, for measuring the surrogate against the expected fields.
 
-Replica r of mould i (global seed S) is simulated with seed `condor.seeds.replica_seed(S, i, r)`,
+Replica r of mould i (global seed S) is simulated with seed `condor.data.seeds.replica_seed(S, i, r)`,
 the store's replica convention (r = 0 is the dataset's own sample), by the store's solver and
 budget unless --solver names another. Writes an .npz with `mould_ids` (M,), `fields`
 (M, R, 8, H, W) float32 (replica 0 from the store), `n_cells` (M,), `seeds` (M, R), `energy`
@@ -13,7 +13,7 @@ output.
 A store built with `simulation.replicas.test` > 1 (the default config: 8) already holds its
 test moulds' replicas: `--from-store` copies them into the same .npz, simulating nothing
 (every replica of the split's replicated moulds, replica 0 first; each sample's seed is
-checked against condor.seeds.replica_seed):
+checked against condor.data.seeds.replica_seed):
 
     PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --from-store \
         --out replicas.npz
@@ -27,12 +27,12 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.dataset import open_dataset
-from condor.moulds import MouldParams
-from condor.scenes import Scene
-from condor.seeds import replica_seed
+from condor.data.reader import open_dataset
+from condor.data.moulds import MouldParams
+from condor.model.scenes import Scene
+from condor.data.seeds import replica_seed
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.store import replica_samples
+from condor.data.store import replica_samples
 
 
 def from_store(store: str, split: str, out: str) -> None:
@@ -53,7 +53,7 @@ def from_store(store: str, split: str, out: str) -> None:
     expected = np.array([[replica_seed(seed, int(m), r) for r in range(samples.shape[1])]
                          for m in ids])
     if not np.array_equal(seeds, expected):
-        raise SystemExit(f"{store}: sample seeds differ from condor.seeds.replica_seed")
+        raise SystemExit(f"{store}: sample seeds differ from condor.data.seeds.replica_seed")
     n_cells = np.asarray(ds["n_cells"].values)[samples]
     if not np.all(n_cells == n_cells[:, :1]):
         raise SystemExit(f"{store}: replicas of one mould disagree on the number of cells")

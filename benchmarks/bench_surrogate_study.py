@@ -8,7 +8,7 @@ cause study, the learning curves and the default's accuracy in docs/surrogate.md
 Trains (resuming) DIR/NAME.pt on the store's training moulds (the first --n-train of them when
 given; the replica moulds and the validation moulds of --val-store are never trained on),
 then appends one row per (checkpoint, prediction mode, symmetrisation) to DIR/results.csv:
-whole-mould statistics against the replica means (r, r ceiling, bias; condor.estimators),
+whole-mould statistics against the replica means (r, r ceiling, bias; condor.measures.estimators),
 the field error against the expected fields and the single-simulation ceiling (RMS over
 pixels, noise-corrected, bootstrap intervals over moulds), the spread's calibration
 (condor.surrogate.calibration) and the checkerboard amplitude. `--epochs-at` also evaluates
@@ -29,14 +29,14 @@ import numpy as np
 import pandas as pd
 import torch
 
-from condor.dataset import open_dataset
-from condor.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
+from condor.data.reader import open_dataset
+from condor.measures.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
                                root_mean, statistic_agreement)
-from condor.fields import mould_statistics
+from condor.data.fields import mould_statistics
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.data import FIELD_NAMES, model_inputs, usable_samples
+from condor.surrogate.samples import FIELD_NAMES, model_inputs, usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import train_config

@@ -21,7 +21,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from condor.store import open_store  # noqa: E402
+from condor.data.store import open_store  # noqa: E402
 from condor.studies import accuracy  # noqa: E402
 from condor.studies.reference import reference_ensemble  # noqa: E402
 from condor.surrogate.predict import Predictor  # noqa: E402

@@ -6,12 +6,12 @@ from shapely.geometry import box
 
 import dataclasses
 
-from condor.anneal import (
+from condor.model.anneal import (
     INIT_AMP_ORI, INIT_AMP_POS, MAX_STEP_ORI, T_INIT, TARGET_ACCEPT, AnnealRun, anneal,
     anneal_kernel, neighbour_lists, trial_energy_change,
 )
-from condor.energy import DELTA, bond_energies, random_orientations, total_energy
-from condor.lattice import build_lattice
+from condor.model.energy import DELTA, bond_energies, random_orientations, total_energy
+from condor.model.lattice import build_lattice
 
 
 @pytest.fixture(scope="module")
@@ -324,7 +324,7 @@ def test_set_state_keeps_the_running_energy_exact(mould):
 
 
 def test_positions_only_relaxation_turns_no_cell_and_lowers_the_energy(mould):
-    from condor.lbfgs import minimise_lbfgs
+    from condor.model.lbfgs import minimise_lbfgs
     lat, ori = mould
     args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
     pos, o, info = minimise_lbfgs(lat, lat.positions, ori, 50, 0.0, positions_only=True)
@@ -335,7 +335,7 @@ def test_positions_only_relaxation_turns_no_cell_and_lowers_the_energy(mould):
 
 
 def test_relaxed_anneal_is_deterministic_and_counts_its_relaxations(mould):
-    from condor.anneal import relaxed_anneal
+    from condor.model.anneal import relaxed_anneal
     lat, ori = mould
     a = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, 10)
     b = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, 10)

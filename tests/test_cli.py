@@ -7,10 +7,10 @@ import sys
 import numpy as np
 import pytest
 
-from condor.fields import FIELD_NAMES
-from condor.moulds import load_json
-from condor.simulate import SimResult
-from condor.store import StoreSpec, assign_splits, create_store, write_inputs, write_sample
+from condor.data.fields import FIELD_NAMES
+from condor.data.moulds import load_json
+from condor.model.simulate import SimResult
+from condor.data.store import StoreSpec, assign_splits, create_store, write_inputs, write_sample
 
 
 def condor(*args, cwd):

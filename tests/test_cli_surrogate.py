@@ -16,21 +16,20 @@ import xarray as xr
 from PIL import Image
 
 from condor import cli
-from condor.moulds import input_channels, load_json
-from condor.store import StoreSpec, create_store, open_store, write_inputs, write_sample
+from condor.data.moulds import input_channels, load_json
+from condor.data.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from condor.surrogate.models import PREDICTION_MODES
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
-from condor.surrogate.train import MODEL_KINDS
 
 SIZE = 32
 BOX = 31.25  # the `default` scene's box, so that `condor mould` moulds fit the checkpoint
-FAST = ["--base", "8", "--batch-size", "4", "--lr", "2e-3", "--threads", "1"]
+FAST = ["--variant", "unet_l1", "--base", "8", "--batch-size", "4", "--lr", "2e-3", "--threads", "1"]
 
 
 def write_store(path, ds, box=BOX):
-    """The synthetic samples in a store made by condor.store, as the workflow writes it."""
+    """The synthetic samples in a store made by condor.data.store, as the workflow writes it."""
     n, size = ds.sizes["sample"], ds.sizes["x"]
     spec = StoreSpec(n_moulds=n, pixels=size, seed=0, split=tuple(ds["split"].values.astype(str)),
                      attrs={"pixel_size": box / size, "scene": {"name": "synthetic", "box": box}})
@@ -60,7 +59,7 @@ def run_main(argv):
 
 
 def test_parser_choices_agree_with_library():
-    assert cli.MODEL_KINDS == MODEL_KINDS and cli.PREDICTION_MODES == PREDICTION_MODES
+    assert cli.PREDICTION_MODES == PREDICTION_MODES
 
 
 def test_train_writes_checkpoint(trained):

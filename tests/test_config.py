@@ -8,8 +8,8 @@ import pytest
 import yaml
 
 from condor.config import SCHEMA_PATH, Config, ConfigError, load_schema
-from condor.moulds import MouldParams
-from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.data.moulds import MouldParams
+from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
 
@@ -26,6 +26,38 @@ def test_shipped_configs_validate(name):
     assert ids == list(range(config.n_moulds))  # every mould in exactly one batch
     assert len(config.replicas()) == config.n_moulds
     assert config.store_spec().n_samples == sum(config.replicas())
+
+
+OVERLAYS = ["tiny.yaml", "paper.yaml"]
+
+
+def test_the_default_run_is_the_schemas_defaults():
+    """config.yaml shows keys to change, each at the schema's default: the default run (960
+    moulds, 100 test moulds with 4 replicas, the `unet` preset) is the schema's."""
+    config = Config.load(CONFIG_DIR / "config.yaml")
+    assert config == Config.default()
+    assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"]) == \
+        (960, 100, 4)
+    assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
+
+
+@pytest.mark.parametrize("name", OVERLAYS)
+def test_the_config_snakemake_sees(name):
+    """`snakemake --configfile config/<name>` layers it over the Snakefile's config.yaml:
+    `layered` merges as Snakemake does, and since config.yaml holds defaults only, the
+    overlay alone is the config the workflow runs."""
+    from snakemake.utils import update_config
+
+    from condor.config import layered
+
+    base, over = (yaml.safe_load((CONFIG_DIR / n).read_text()) for n in ("config.yaml", name))
+    seen = yaml.safe_load((CONFIG_DIR / "config.yaml").read_text())
+    update_config(seen, over)
+    assert layered(base, over) == seen
+    workflow = Config.load(CONFIG_DIR / "config.yaml", CONFIG_DIR / name)
+    assert workflow == Config.from_dict(seen) == Config.load(CONFIG_DIR / name)
+    # nested keys are layered, not replaced
+    assert layered({"a": {"b": 1, "c": 2}}, {"a": {"b": 3}}) == {"a": {"b": 3, "c": 2}}
 
 
 def test_schema_ships_in_the_package():
@@ -125,7 +157,7 @@ def test_moulds_with_a_paper_reference_are_test_moulds_at_any_size():
 def test_tether_free_test_moulds_take_their_own_replicas():
     """simulation.replicas.test_tether_free: the tether-free test moulds (as the generator
     draws them) take it, every other mould its split's count; null leaves them alone."""
-    from condor.moulds import generate_mould
+    from condor.data.moulds import generate_mould
 
     config = Config.default(n_moulds=60, split={"test": 30},
                             moulds={"no_tether_fraction": 0.3},
@@ -138,7 +170,7 @@ def test_tether_free_test_moulds_take_their_own_replicas():
     assert list(config.replicas()) == expected and expected.count(11) >= 3
     assert config.store_spec().replicas == tuple(expected)
     plain = Config.default(n_moulds=60, split={"test": 30}, moulds={"no_tether_fraction": 0.3},
-                           simulation={"replicas": {"test": 4}})
+                           simulation={"replicas": {"test": 4, "test_tether_free": None}})
     assert set(r for r, s in zip(plain.replicas(), plain.splits()) if s == "test") == {4}
 
 
@@ -148,7 +180,8 @@ def test_the_schema_takes_every_variant_setting_the_library_knows():
     from condor.surrogate.variants import SETTING_KEYS
 
     models = load_schema()["properties"]["surrogate"]["properties"]["models"]
-    assert set(models["additionalProperties"]["properties"]) == set(SETTING_KEYS) - {"num_threads"}
+    assert set(models["additionalProperties"]["properties"]) == \
+        set(SETTING_KEYS) - {"num_threads"} | {"preset"}
     config = Config.default(surrogate={"variants": ["t"], "models": {"t": {
         "model": "unet", "head": "physics", "loss": "gaussian", "sum_weight": 1.0}}})
     assert config.surrogate["models"]["t"]["sum_weight"] == 1.0
@@ -203,3 +236,23 @@ def test_shipped_configs_pass_the_size_limits_with_a_wide_margin(name, monkeypat
     monkeypatch.setattr(C, "MAX_KERNEL_BYTES", C.MAX_KERNEL_BYTES / 10)
     monkeypatch.setattr(C, "MIN_MOULD_AREA", C.MIN_MOULD_AREA * 4)
     Config.load(CONFIG_DIR / name)
+
+
+def test_the_design_defaults_have_one_home():
+    """The CLI's design defaults are the schema's; the design stage and the library's search
+    and confirmation take the numbers from their callers (no default of their own)."""
+    import inspect
+
+    from condor import cli
+    from condor.design import confirm, search
+    from condor.stages.design import design
+
+    args = cli.build_parser().parse_args(["design", "--objective", "uniformity", "--checkpoint",
+                                          "m.pt", "--out", "d"])
+    schema = load_schema()["properties"]["design"]["properties"]
+    assert (args.budget, args.top, args.random, args.replicas, args.seed) == tuple(
+        schema[k]["default"] for k in ("budget", "top", "random", "replicas", "seed"))
+    for function, names in ((design, ("budget", "seed", "n_top", "n_random", "replicas")),
+                            (search, ("budget",)), (confirm, ("n_top", "n_random", "replicas"))):
+        parameters = inspect.signature(function).parameters
+        assert all(parameters[n].default is inspect.Parameter.empty for n in names), function

@@ -11,8 +11,8 @@ import pytest
 import torch
 
 import condor
-from condor import dataset
-from condor.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
+from condor.data import reader as dataset
+from condor.data.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
 
 PIXELS = 8
 REPLICAS = (1, 3, 1, 1, 2, 1)
@@ -95,7 +95,7 @@ def test_card_counts_and_core_hours_match_the_store(store, tmp_path):
 def test_training_data_names_a_corrupt_or_lost_sample(store, tmp_path):
     import shutil
 
-    from condor.surrogate.data import DataError, SampleSource
+    from condor.surrogate.samples import DataError, SampleSource
 
     copy = tmp_path / "copy.zarr"
     shutil.copytree(store, copy)

@@ -11,9 +11,9 @@ from condor.design import (agreement, baseline_objectives, confirm, dataset_base
                            replica_ceiling, replica_seeds, search, select_for_confirmation,
                            simulate_designs, spearman)
 from condor.design.analytic import AnalyticPredictor
-from condor.fields import normalise
-from condor.seeds import replica_seed
-from condor.scenes import get_scene
+from condor.data.fields import normalise
+from condor.data.seeds import replica_seed
+from condor.model.scenes import get_scene
 
 SCENE = get_scene("tiny")
 
@@ -183,7 +183,7 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     assert listed_only["simulated_objective"].isna().all()
     assert design_table(result, n=2)["role"].tolist() == ["ranked", "ranked"]
     with pytest.raises(ValueError, match="scene 'default'"):
-        confirm(result, get_scene("default"))
+        confirm(result, get_scene("default"), n_top=1, n_random=0, replicas=1)
 
 
 def test_confirmation_figure_is_written(tmp_path):

@@ -7,7 +7,7 @@ import pytest
 
 from condor.design.objectives import (EmptyRegionError, InfeasibleConstraintError, Objective,
                                       ObjectiveError, UnknownObjectiveError, parse_objective)
-from condor.fields import cell_fields, normalise
+from condor.data.fields import cell_fields, normalise
 
 BOX, PIXELS = 16.0, 32
 

@@ -9,10 +9,10 @@ from shapely import affinity
 
 from condor.design.objectives import parse_objective
 from condor.design.space import DesignSpace, default_space, symmetry_group
-from condor.lattice import build_lattice
-from condor.moulds import validate_mould
-from condor.scenes import get_scene
-from condor.simulate import simulate
+from condor.model.lattice import build_lattice
+from condor.data.moulds import validate_mould
+from condor.model.scenes import get_scene
+from condor.model.simulate import simulate
 
 SCENE = get_scene("default")
 SYMMETRIES = ["none", "single_mirror", "double_mirror", "cyclic:3", "dihedral:4"]
@@ -144,7 +144,7 @@ def test_the_simulator_accepts_design_moulds():
 
 
 def test_design_moulds_round_trip_through_the_mould_file_that_condor_simulate_reads(tmp_path):
-    from condor.moulds import load_json, save_json
+    from condor.data.moulds import load_json, save_json
 
     space = DesignSpace.from_scene(SCENE, symmetry="none")
     for i, x in enumerate(space.random_vectors(np.random.default_rng(5), 5)):

@@ -1,4 +1,4 @@
-"""Tests for condor.drawings: a user's own mould from JSON, SVG and DXF, its placement in a
+"""Tests for condor.data.drawings: a user's own mould from JSON, SVG and DXF, its placement in a
 scene, the training-domain check, and the SVG/DXF hand-over drawings."""
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ import pytest
 import shapely
 from shapely.geometry import Point, Polygon, box as shapely_box
 
-from condor import drawings as D
-from condor.lattice import build_lattice
-from condor.moulds import InvalidMouldError, Mould, generate_mould, input_channels, save_json
-from condor.scenes import get_scene
-from condor.simulate import simulate
+from condor.data import drawings as D
+from condor.model.lattice import build_lattice
+from condor.data.moulds import InvalidMouldError, Mould, generate_mould, input_channels, save_json
+from condor.model.scenes import get_scene
+from condor.model.simulate import simulate
 
 TINY = get_scene("tiny")  # box 15.625 l0, depth 2, 32 px
 SVG_NS = "{http://www.w3.org/2000/svg}"

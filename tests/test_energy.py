@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from shapely.geometry import box
 
-from condor.energy import (DELTA, bond_energies, cell_tension, energy_gradient, project_tangent,
+from condor.model.energy import (DELTA, bond_energies, cell_tension, energy_gradient, project_tangent,
                            random_orientations, total_energy)
-from condor.lattice import build_lattice
+from condor.model.lattice import build_lattice
 
 
 def brute_force_energy(pos, ori, lat, delta=DELTA):

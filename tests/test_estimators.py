@@ -1,9 +1,9 @@
-"""condor.estimators on synthetic draws with a known mean and variance."""
+"""condor.measures.estimators on synthetic draws with a known mean and variance."""
 
 import numpy as np
 import pytest
 
-from condor import estimators as est
+from condor.measures import estimators as est
 
 
 def draws(rng, moulds=150, replicas=4, shape=(3, 6, 6), sigma=0.5):
@@ -202,7 +202,7 @@ def test_padding_must_be_whole_missing_replicas_at_the_end():
 
 
 def test_pad_replicas_keeps_each_moulds_own_and_pads_with_nan():
-    from condor.estimators import pad_replicas
+    from condor.measures.estimators import pad_replicas
     a = [np.ones((2, 3)), 2 * np.ones((2, 3))]
     b = [3 * np.ones((2, 3))]
     out = pad_replicas([a, b])

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 
-from condor.fields import FIELD_NAMES, cell_fields, normalise
-from condor.scenes import get_scene
+from condor.data.fields import FIELD_NAMES, cell_fields, normalise
+from condor.model.scenes import get_scene
 from condor.studies.fidelity import FIDELITY_COLUMNS, fidelity_row, mean_orientation
 from condor.studies.paper_reference import (
     POS_QUANTUM, load_reference, pack_mould, reference_moulds, reference_seed, run_path,

@@ -1,4 +1,4 @@
-"""Tests for condor.fields: kernel weights, rasterisation, normalisation and statistics.
+"""Tests for condor.data.fields: kernel weights, rasterisation, normalisation and statistics.
 
 Reference values come from independent computations: Gauss-Legendre and scipy quadrature of
 the Gaussian, a direct double loop over all pixels, block sums across resolutions, and
@@ -13,8 +13,8 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from condor import fields as F
-from condor.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
+from condor.data import fields as F
+from condor.model.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
 
 PAPER_PS = PAPER_BOX / PAPER_PIXELS
 

@@ -1,4 +1,4 @@
-"""The lattice channels (condor.inputs): the simulation's own initial cells, counted against
+"""The lattice channels (condor.data.inputs): the simulation's own initial cells, counted against
 build_lattice, in column units, exact under the box's mirrors; their estimate from masks; the
 masks' sub-pixel coverage; and a surrogate that reads them."""
 
@@ -8,11 +8,11 @@ import shapely
 from shapely.affinity import scale as shapely_scale
 from shapely.geometry import Point, box
 
-from condor import inputs
-from condor.lattice import build_lattice, lattice_sites
-from condor.moulds import Mould, generate_mould, input_channels
-from condor.scenes import get_scene
-from condor.surrogate.data import DataError, model_inputs, usable_samples
+from condor.data import inputs
+from condor.model.lattice import build_lattice, lattice_sites
+from condor.data.moulds import Mould, generate_mould, input_channels
+from condor.model.scenes import get_scene
+from condor.surrogate.samples import DataError, model_inputs, usable_samples
 from condor.surrogate.physics import estimate_n_cells
 from condor.surrogate.predict import Predictor, run_model
 from condor.surrogate.synthetic import synthetic_dataset
@@ -218,7 +218,7 @@ def test_stress_channels_transform_as_the_augmentation_says(k):
     """For every planar symmetry g: the stress of the transformed mould is the transformed
     stress, with the mechanics kind's channel rule (the transpose swaps sigma_xx, sigma_yy);
     without the rule the transpose would be wrong."""
-    from condor.surrogate.data import apply_symmetry
+    from condor.surrogate.samples import apply_symmetry
 
     m = _mould(6)
     masks = input_channels(m, SCENE.pixels)
@@ -238,7 +238,7 @@ def test_shear_stress_transforms_as_the_augmentation_says(k):
     """sigma_xy of the transformed mould is the transformed sigma_xy with mechanics_shear's
     rule: odd under each mirror, kept by the transpose (which swaps sigma_xx, sigma_yy); the
     mechanics rule alone (no sign) gets a mirror wrong."""
-    from condor.surrogate.data import apply_symmetry
+    from condor.surrogate.samples import apply_symmetry
 
     masks = input_channels(_mould(6), SCENE.pixels)
     lattice = np.zeros((2,) + masks.shape[1:], dtype=np.float32)

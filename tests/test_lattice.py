@@ -7,7 +7,7 @@ import pytest
 import shapely
 from shapely.geometry import Point, Polygon, box
 
-from condor.lattice import HALF, SHELL_KBAR, build_lattice, signed_volumes
+from condor.model.lattice import HALF, SHELL_KBAR, build_lattice, signed_volumes
 
 
 def brute_force_pairs(positions, cutoff=2.0 + 1e-6):

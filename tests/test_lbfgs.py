@@ -1,13 +1,13 @@
-"""Tests of the L-BFGS minimiser with exact walls (condor.lbfgs)."""
+"""Tests of the L-BFGS minimiser with exact walls (condor.model.lbfgs)."""
 
 import numpy as np
 import pytest
 from shapely.geometry import box
 
-from condor.energy import DELTA, energy_gradient, random_orientations, total_energy
-from condor.lattice import build_lattice
-from condor.lbfgs import minimise_lbfgs
-from condor.minimise import minimise
+from condor.model.energy import DELTA, energy_gradient, random_orientations, total_energy
+from condor.model.lattice import build_lattice
+from condor.model.lbfgs import minimise_lbfgs
+from condor.model.minimise import minimise
 
 WIDTH, HEIGHT, DEPTH = 8.0, 6.0, 2.0
 SQUARE = box(0, 0, WIDTH, HEIGHT)
@@ -25,7 +25,7 @@ def lattice():
 
 
 def balance(lat, pos, ori):
-    """Per cell, without condor.walls: the force left after the exact walls (box sides,
+    """Per cell, without condor.model.walls: the force left after the exact walls (box sides,
     post circles, floor, lid) take the outward normal part of pressing cells; the tangent
     orientation force; and the normal force each post takes (> 0 pressing)."""
     gp, go = np.zeros_like(pos), np.zeros_like(pos)

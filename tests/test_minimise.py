@@ -4,9 +4,9 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
-from condor.energy import DELTA, energy_gradient, random_orientations, total_energy
-from condor.lattice import build_lattice
-from condor.minimise import minimise
+from condor.model.energy import DELTA, energy_gradient, random_orientations, total_energy
+from condor.model.lattice import build_lattice
+from condor.model.minimise import minimise
 
 
 def args(lat):

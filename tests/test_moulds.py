@@ -1,4 +1,4 @@
-"""Tests for condor.moulds: statistics over many moulds, symmetry, contract, files, rasters."""
+"""Tests for condor.data.moulds: statistics over many moulds, symmetry, contract, files, rasters."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, box as shapely_box
 
-from condor import moulds as M
+from condor.data import moulds as M
 from condor import plots
 
 BOX = 62.5
@@ -570,10 +570,10 @@ def test_user_moulds_are_refused_by_geometry(polygon, tethers, message):
 
 
 def test_accepted_user_moulds_always_hold_mobile_cells():
-    """Brute force against condor.lattice: rotated strips near the one-cell limit, half of
+    """Brute force against condor.model.lattice: rotated strips near the one-cell limit, half of
     them with a post of random size; every mould validate_mould accepts builds a lattice
     with mobile cells (the check is conservative: it refuses some that would too)."""
-    from condor.lattice import build_lattice
+    from condor.model.lattice import build_lattice
 
     rng = np.random.default_rng(11)
     accepted = refused = 0

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from condor.store import check_store
+from condor.data.store import check_store
 from test_workflow import REPO, run, snakemake_args
 
 pytestmark = pytest.mark.slow

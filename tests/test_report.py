@@ -11,7 +11,7 @@ import pytest
 
 from condor import plots, report
 from condor.config import Config
-from condor.store import StoreSpec, create_store, write_inputs, write_sample
+from condor.data.store import StoreSpec, create_store, write_inputs, write_sample
 
 
 def png(path, seed=0, size=(40, 30)):
@@ -96,7 +96,7 @@ def test_render_links_every_section_from_the_contents():
 
 CONFIG = Config.from_dict({"scene": "tiny", "seed": 1, "n_moulds": 4, "split": {"test": 1},
                            "surrogate": {"variants": ["unet"],
-                                         "models": {"unet": {"model": "unet_l1"}}}})
+                                         "models": {"unet": {"preset": "unet_l1"}}}})
 
 
 def accuracy_table(surrogate=(0.05, 0.04, 0.06)):
@@ -378,7 +378,8 @@ def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):
 
 def test_dataset_line_names_the_tether_free_test_moulds_replicas():
     summary = pd.DataFrame({"mould": [0, 1, 1], "state": ["ok", "ok", "failed"]})
-    plain = report._dataset_line(Config.default(), summary)
+    plain = Config.default(simulation={"replicas": {"test": 8, "test_tether_free": None}})
+    plain = report._dataset_line(plain, summary)
     assert "test 8." in plain and "tether-free" not in plain and "1 failed" in plain
-    config = Config.default(simulation={"replicas": {"test": 4, "test_tether_free": 20}})
-    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(config, summary)
+    # the default run's: 4 replicas a test mould, 20 a tether-free one
+    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(Config.default(), summary)

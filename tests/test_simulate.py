@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from shapely.geometry import Polygon, box
 
-from condor.energy import DELTA, total_energy
-from condor.fields import cell_fields, normalise
-from condor.lattice import build_lattice
-from condor.simulate import (DEFAULT_FTOL, DEFAULT_SOLVER, SOLVERS, SimResult, diagnose, simulate,
+from condor.model.energy import DELTA, total_energy
+from condor.data.fields import cell_fields, normalise
+from condor.model.lattice import build_lattice
+from condor.model.simulate import (DEFAULT_FTOL, DEFAULT_SOLVER, SOLVERS, SimResult, diagnose, simulate,
                              simulate_lattice)
 
 SQUARE = box(0, 0, 8, 6)
@@ -139,7 +139,7 @@ def test_ftol_sets_the_final_force():
 
 
 def test_a_bond_collapsing_during_the_solve_is_flagged_nonfinite(monkeypatch):
-    import condor.simulate as sim
+    import condor.model.simulate as sim
 
     def collapse(*args, **kwargs):
         raise ZeroDivisionError("division by zero")
@@ -150,7 +150,7 @@ def test_a_bond_collapsing_during_the_solve_is_flagged_nonfinite(monkeypatch):
 
 
 def test_every_result_reports_its_residual_force_and_cost():
-    from condor.walls import residual_forces
+    from condor.model.walls import residual_forces
 
     lat = build_lattice(SQUARE, TWO_POSTS, 2.0)
     for solver in SOLVERS:

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from condor.lattice import build_lattice
-from condor.simulate import SOLVERS, simulate
-from condor.stability import CASES, DEPTH, run_case, run_cases
+from condor.model.lattice import build_lattice
+from condor.model.simulate import SOLVERS, simulate
+from condor.studies.stability import CASES, DEPTH, run_case, run_cases
 
 
 @pytest.fixture(scope="module")

@@ -8,7 +8,7 @@ import pytest
 import xarray as xr
 import zarr
 
-from condor.store import (
+from condor.data.store import (
     FIELD_NAMES,
     StoreError,
     StoreSpec,

@@ -6,13 +6,13 @@ import pandas as pd
 import pytest
 from shapely.geometry import box
 
-from condor.energy import random_orientations
-from condor.fields import FIELD_NAMES, normalise
-from condor.lattice import build_lattice
-from condor.moulds import Mould
-from condor.scenes import get_scene
-from condor.simulate import simulate_lattice
-from condor.store import StoreSpec, create_store, open_store, sample_index, write_inputs, write_sample
+from condor.model.energy import random_orientations
+from condor.data.fields import FIELD_NAMES, normalise
+from condor.model.lattice import build_lattice
+from condor.data.moulds import Mould
+from condor.model.scenes import get_scene
+from condor.model.simulate import simulate_lattice
+from condor.data.store import StoreSpec, create_store, open_store, sample_index, write_inputs, write_sample
 from condor.studies import accuracy, reference, sweep
 from condor.studies.convergence import convergence
 from condor.studies.ladder import ladder
@@ -157,7 +157,7 @@ def test_convergence_reference_rows_are_zero_and_a_thin_slab_is_not_justified():
 def test_ladder_finds_its_own_recipe_in_the_same_states():
     mould = small_mould()
     runs = [reference.anneal_then_relax(mould, SCENE.depth, 200, seed=50 + k) for k in range(4)]
-    from condor.fields import cell_fields
+    from condor.data.fields import cell_fields
 
     raw = np.stack([cell_fields(r.positions, r.orientations, r.tension, SCENE.box, SCENE.pixels,
                                 SCENE.sigma) for r in runs])[None]

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from condor.fields import cell_fields
-from condor.surrogate.data import (FIELD_NAMES, FLIP_Z, MIRROR_X, MIRROR_Y, N_SYMMETRIES,
+from condor.data.fields import cell_fields
+from condor.surrogate.samples import (FIELD_NAMES, FLIP_Z, MIRROR_X, MIRROR_Y, N_SYMMETRIES,
                                    TRANSPOSE, FieldScaling, apply_symmetry, compute_scaling,
                                    usable_samples)
 from condor.surrogate.models import UNetConfig, UNetGenerator

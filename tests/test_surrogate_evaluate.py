@@ -6,11 +6,11 @@ import pytest
 import torch
 
 from condor import plots
-from condor.metrics import normalise_predicted
+from condor.measures.metrics import normalise_predicted
 
 from condor.surrogate.baselines import MaskedMeanBaseline, MouldBlurBaseline, gaussian_blur
 from condor.surrogate.checkpoint import save_checkpoint
-from condor.surrogate.data import FIELD_NAMES, FieldScaling
+from condor.surrogate.samples import FIELD_NAMES, FieldScaling
 from condor.surrogate.evaluate import (best_worst, correlation_table, evaluate, mae_frame,
                                        pearson_r, statistics_frame)
 from condor.surrogate.models import UNetConfig, paper_generator
@@ -62,7 +62,7 @@ def test_statistics_and_correlations_against_corrcoef():
         assert table.loc[name, "r"] == pytest.approx(np.corrcoef(sim[name], prd[name])[0, 1], rel=1e-10)
     assert table.loc["mean_P", "paper_r"] == 0.881 and table.loc["mean_T_norm", "paper_relation"] == ">"
     # The project's real statistics, when present, go through the same path.
-    fields = pytest.importorskip("condor.fields")
+    fields = pytest.importorskip("condor.data.fields")
     real = statistics_frame(true.astype(np.float32), 0.5)
     assert list(real.columns) == list(fields.STATISTICS)
     np.testing.assert_allclose(real["mean_T_norm"], true[:, 1].sum(axis=(1, 2)) / true[:, 0].sum(axis=(1, 2)), rtol=1e-5)

@@ -8,7 +8,7 @@ import pytest
 import torch
 from torch import nn
 
-from condor.surrogate.data import resample_fields, resample_masks
+from condor.surrogate.samples import resample_fields, resample_masks
 from condor.surrogate.models import (PatchConfig, PatchDiscriminator, TFBatchNorm2d, UNetConfig,
                                      UNetGenerator, count_parameters_like_paper, discriminator_loss,
                                      generator_loss, paper_discriminator, paper_generator,

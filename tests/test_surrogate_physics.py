@@ -9,14 +9,14 @@ import xarray as xr
 from shapely.geometry import Polygon, box
 
 from condor import cli, plots
-from condor.lattice import build_lattice
-from condor.moulds import generate_mould, save_json
+from condor.model.lattice import build_lattice
+from condor.data.moulds import generate_mould, save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels, z_of)
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
-from condor.surrogate.data import FIELD_NAMES, apply_symmetry, usable_samples
+from condor.surrogate.samples import FIELD_NAMES, apply_symmetry, usable_samples
 from condor.surrogate.models import UNetConfig, UNetGenerator
-from condor.fields import mould_statistics
+from condor.data.fields import mould_statistics
 from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,
                                       n_cells_of_mould)
 from condor.surrogate.predict import Predictor, predict, write_prediction
@@ -316,8 +316,8 @@ def test_checkpoint_records_the_kernel_width_and_older_ones_still_resume(physics
     """A store drawn with another kernel width (scene_overrides sigma): the Predictor draws a
     new mould's lattice channels with that width, not the default's; a checkpoint written
     before the width was recorded still resumes."""
-    from condor.inputs import lattice_channels
-    from condor.scenes import SIGMA_L0
+    from condor.data.inputs import lattice_channels
+    from condor.model.scenes import SIGMA_L0
 
     ds = physics_ds.copy()
     ds.attrs = {**physics_ds.attrs, "scene": {"depth": 2.0, "sigma": 1.7}}

@@ -8,7 +8,7 @@ import torch
 from condor.surrogate.baselines import MaskedMeanBaseline
 from condor.surrogate.checkpoint import (CheckpointError, CheckpointMismatchError,
                                          CheckpointNotFoundError, load_checkpoint, save_checkpoint)
-from condor.surrogate.data import FieldScaling, SampleSource, compute_scaling, usable_samples
+from condor.surrogate.samples import FieldScaling, SampleSource, compute_scaling, usable_samples
 from condor.surrogate.models import UNetConfig
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset

@@ -11,8 +11,9 @@ from condor.stages.surrogate import evaluate, evaluate_baselines, summarise, tra
 from condor.surrogate.checkpoint import load_checkpoint
 from condor.surrogate.models import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
-from condor.surrogate.variants import train_config, workflow_variants
-from condor.store import write_sample
+from condor.surrogate.train import TrainConfig
+from condor.surrogate.variants import PRESETS, UNET_KEYS, resolve, train_config, workflow_variants
+from condor.data.store import write_sample
 from test_cli_surrogate import write_store
 
 REPO_CONFIGS = ("config/config.yaml", "config/tiny.yaml", "config/paper.yaml")
@@ -44,9 +45,44 @@ def test_train_config_rejects_bad_settings(settings, message):
         train_config(settings, 64)
 
 
+def test_presets_name_only_what_they_change():
+    """Each preset of the registry differs from TrainConfig's and UNetConfig.for_size's
+    defaults in every key it names (a key at its default would be a second home of it)."""
+    trainer, unet = TrainConfig(), UNetConfig.for_size(32)
+    for name, settings in PRESETS.items():
+        for key, value in settings.items():
+            if key == "model":
+                continue
+            default = getattr(unet if key in UNET_KEYS else trainer, key)
+            assert (tuple(value) if isinstance(value, (list, tuple)) else value) != default, \
+                (name, key)
+        train_config(settings, 32)
+
+
+def test_resolve_layers_a_variant_over_its_preset():
+    assert resolve("unet") == dict(PRESETS["unet"])
+    assert resolve("unet", {"unet": {"epochs": 3}}) == {**PRESETS["unet"], "epochs": 3}
+    small = resolve("small", {"small": {"preset": "unet_l1", "base": 8}})
+    assert small == {**PRESETS["unet_l1"], "base": 8}
+    assert resolve("mine", {"mine": {"model": "unet_l1"}}) == {"model": "unet_l1"}
+    with pytest.raises(ValueError, match="neither a preset nor a model"):
+        resolve("mine", {"mine": {"base": 8}})
+    with pytest.raises(ValueError, match="'nope'"):
+        resolve("mine", {"mine": {"preset": "nope"}})
+
+
+def test_the_tiny_run_trains_the_default_preset_smaller():
+    """What the tiny workflow trains (tiny.yaml layered over config.yaml, as Snakemake reads
+    them) is the `unet` preset with only its size and length changed."""
+    config = Config.load("config/config.yaml", "config/tiny.yaml")
+    assert workflow_variants(config) == {"unet": {**PRESETS["unet"], "base": 8, "epochs": 30,
+                                                  "batch_size": 4}}
+    assert workflow_variants(Config.load("config/config.yaml")) == {"unet": dict(PRESETS["unet"])}
+
+
 def test_workflow_variants_and_repository_configs():
     for path in REPO_CONFIGS:
-        config = Config.load(path)
+        config = Config.load("config/config.yaml", path)
         variants = workflow_variants(config)
         assert variants, path
         for name, settings in variants.items():

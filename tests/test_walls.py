@@ -4,8 +4,8 @@ import numpy as np
 import pytest
 from shapely.geometry import Point, box
 
-from condor.lattice import build_lattice
-from condor.walls import (FLOOR, LAND, LID, ON_WALL, PINNED, SLIDE, place, project_force,
+from condor.model.lattice import build_lattice
+from condor.model.walls import (FLOOR, LAND, LID, ON_WALL, PINNED, SLIDE, place, project_force,
                           project_state, residual_forces)
 
 SQUARE = box(0, 0, 8, 6)
@@ -111,9 +111,9 @@ def test_project_state_puts_every_cell_inside(region):
 def test_residual_forces_match_an_independent_computation():
     """FIRE's final state (soft walls, then projected onto the region) leaves cells on the
     posts, pressed into them: the residual equals the force minus its outward normal part,
-    with the normal of the exact circle, computed here without condor.walls."""
-    from condor.energy import DELTA, energy_gradient
-    from condor.simulate import simulate
+    with the normal of the exact circle, computed here without condor.model.walls."""
+    from condor.model.energy import DELTA, energy_gradient
+    from condor.model.simulate import simulate
 
     posts = np.array([[2.0, 3.0, 0.8], [6.0, 3.0, 0.8]])
     lat = build_lattice(SQUARE, posts, DEPTH)

@@ -111,6 +111,25 @@ def test_end_to_end_tiny(tmp_path):
                                ds["fields"].values[samples].astype(float).mean(axis=0), rtol=1e-5)
     # Nothing left to do: a second run schedules no job.
     assert "Nothing to be done" in run(tmp_path, *TINY).stderr
+    assert_cli_trains_the_workflows_model(tmp_path)
+
+
+def assert_cli_trains_the_workflows_model(workdir):
+    """`condor train --variant unet --config <the run's configs>` gives the workflow's
+    checkpoint bit for bit: the same settings, data and weights."""
+    import torch
+
+    from condor.surrogate.checkpoint import load_checkpoint
+
+    ours = workdir / "cli_unet.pt"
+    subprocess.run([sys.executable, "-m", "condor.cli", "train", "--store", str(store_of(workdir)),
+                    "--checkpoint", str(ours), "--variant", "unet", "--config",
+                    str(REPO / "config" / "config.yaml"), str(REPO / "config" / "tiny.yaml")],
+                   check=True, capture_output=True)
+    theirs, ours = (load_checkpoint(p) for p in (workdir / "results" / "models" / "unet.pt", ours))
+    assert ours["config"] == theirs["config"] and ours["data"] == theirs["data"]
+    assert ours["generator"].keys() == theirs["generator"].keys()
+    assert all(torch.equal(ours["generator"][k], theirs["generator"][k]) for k in ours["generator"])
 
 
 def test_same_config_gives_identical_fields(tmp_path):

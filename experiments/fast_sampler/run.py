@@ -8,7 +8,7 @@ replica seeds of the mould, then L-BFGS to the dataset's tolerance):
   quench                   L-BFGS alone (the dataset's solver until now)
   anneal:B                 the paper's schedule (T_INIT to T_INIT / 1e7) over B moves a cell
   window:B:Thi:Tlo         an exponential anneal over B moves a cell from Thi to Tlo
-  relax:Thi:Tlo:S:W:R      condor.anneal.relaxed_anneal: S segments of W sweeps from Thi to
+  relax:Thi:Tlo:S:W:R      condor.model.anneal.relaxed_anneal: S segments of W sweeps from Thi to
                            Tlo, each followed by R evaluations of L-BFGS on the positions
 Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
 the paper-reference cache (experiments/paper_reference/run.py).
@@ -28,13 +28,13 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from condor import anneal as anneal_mod  # noqa: E402
-from condor.energy import random_orientations  # noqa: E402
-from condor.lattice import build_lattice  # noqa: E402
-from condor.estimators import pad_replicas  # noqa: E402
-from condor.scenes import get_scene  # noqa: E402
-from condor.seeds import replica_seed  # noqa: E402
-from condor.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
+from condor.model import anneal as anneal_mod  # noqa: E402
+from condor.model.energy import random_orientations  # noqa: E402
+from condor.model.lattice import build_lattice  # noqa: E402
+from condor.measures.estimators import pad_replicas  # noqa: E402
+from condor.model.scenes import get_scene  # noqa: E402
+from condor.data.seeds import replica_seed  # noqa: E402
+from condor.model.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
 from condor.studies.fidelity import fidelity_row  # noqa: E402
 from condor.studies.paper_reference import budget_tag, cached_rung, mould_of, scene_fields  # noqa: E402
 

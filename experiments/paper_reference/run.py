@@ -21,8 +21,8 @@ from pathlib import Path
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
-from condor.scenes import get_scene  # noqa: E402
-from condor.simulate import warm_up  # noqa: E402
+from condor.model.scenes import get_scene  # noqa: E402
+from condor.model.simulate import warm_up  # noqa: E402
 from condor.studies.paper_reference import run_path, run_reference  # noqa: E402
 
 

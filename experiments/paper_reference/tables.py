@@ -20,9 +20,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from condor.anneal import KERNEL
-from condor.estimators import pad_replicas
-from condor.scenes import get_scene
+from condor.model.anneal import KERNEL
+from condor.measures.estimators import pad_replicas
+from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
 from condor.studies.paper_reference import budget_tag, cached_rung, pack_mould
 

@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.drawings import load_mould, training_domain_check
-from condor.moulds import MouldParams, input_channels, save_json
-from condor.scenes import PRESETS, Scene, get_scene
-from condor.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
+from condor.data.drawings import load_mould, training_domain_check
+from condor.data.moulds import MouldParams, input_channels, save_json
+from condor.model.scenes import PRESETS, Scene, get_scene, same_length
+from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.store import FORMAT, check_metadata, scan_store, set_aside
+from condor.data.store import FORMAT, check_metadata, scan_store, set_aside
 
 
 class CLIError(Exception):
@@ -100,7 +100,7 @@ def _user_mould_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _load_mould(args, scene):
-    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.drawings)."""
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings)."""
     return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
 
 
@@ -169,23 +169,58 @@ def cmd_check_store(args) -> None:
 
 # --- surrogate stages ---------------------------------------------------------------------------
 
-# condor.surrogate's MODEL_KINDS and PREDICTION_MODES, spelled out so that the parser does
-# not import torch (tests/test_cli_surrogate.py checks they agree).
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
+# condor.surrogate's PREDICTION_MODES, spelled out so that the parser does not import torch
+# (tests/test_cli_surrogate.py checks they agree).
 PREDICTION_MODES = ("eval", "batch_stats", "train")
+
+
+def _schema_default(section: str, key: str):
+    """The workflow config's default of `section/key` (the packaged schema, its only home)."""
+    from condor.config import load_schema
+
+    return load_schema()["properties"][section]["properties"][key]["default"]
+
+
+def _settings(args) -> tuple[str, dict]:
+    """The variant to train and its flat settings: the preset (or the --config's variant,
+    layered over its preset as the workflow layers it), with what --set and the flags change."""
+    import yaml
+
+    from condor.surrogate.variants import resolve
+
+    models, threads = {}, None
+    if args.config:
+        from condor.config import Config
+
+        config = Config.load(*args.config)
+        models, threads = config.to_dict()["surrogate"]["models"], config.surrogate["threads"]
+    name = args.variant or (_schema_default("surrogate", "variants")[0] if not args.config
+                            else config.surrogate["variants"][0])
+    settings = resolve(name, models)
+    for item in args.set or ():
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip():
+            raise CLIError(f"--set {item!r}: expected KEY=VALUE, e.g. --set epochs=5")
+        settings[key.strip()] = yaml.safe_load(value)
+    flags = {"base": args.base, "depth": args.depth, "epochs": args.epochs,
+             "batch_size": args.batch_size, "lr": args.lr, "lam": args.lam, "seed": args.seed,
+             "prediction_mode": args.prediction_mode, "max_val_samples": args.max_val_samples}
+    settings.update({k: v for k, v in flags.items() if v is not None})
+    if args.threads is None and threads is not None:
+        args.threads = threads  # the workflow's threads a training job: the same numbers
+    return name, settings
 
 
 def cmd_train(args) -> None:
     from condor.stages.surrogate import train
 
-    settings = {"model": args.model, "base": args.base, "depth": args.depth, "epochs": args.epochs,
-                "batch_size": args.batch_size, "lr": args.lr, "lam": args.lam, "seed": args.seed,
-                "prediction_mode": args.prediction_mode, "max_val_samples": args.max_val_samples}
+    name, settings = _settings(args)
     checkpoint = Path(args.checkpoint)
     if checkpoint.exists() and not checkpoint.is_dir() and not args.force:
         raise CLIError(f"--checkpoint {str(checkpoint)!r} exists; pass --force to replace it "
                        "(or choose another file)")
-    print(f"training {args.model} on {args.store} into {args.checkpoint}", flush=True)
+    print(f"training {name} ({settings['model']}) on {args.store} into {args.checkpoint}",
+          flush=True)
     history = train(args.store, settings, args.checkpoint, threads=args.threads,
                     device=args.device, fresh=args.fresh, restart_on_mismatch=False,
                     log_line=lambda line: print(line, flush=True))
@@ -282,7 +317,7 @@ def _checkpoint_scene(predictor):
     a scene of its recorded grid and depth (depth NaN when the checkpoint lacks it)."""
     for scene in PRESETS.values():
         if scene.pixels == predictor.native and predictor.box is not None and \
-                abs(scene.box - predictor.box) < 1e-9 * scene.box:
+                same_length(scene.box, predictor.box):
             return scene
     if predictor.box is None:
         raise CLIError(f"checkpoint {predictor.path!r} records no pixel size: moulds cannot be "
@@ -356,27 +391,37 @@ def build_parser() -> argparse.ArgumentParser:
                    "damaged ones aside, to <store>.damaged/, for the next run to rebuild")
     p.set_defaults(func=cmd_check_store)
 
-    p = sub.add_parser("train", help="train a surrogate on a dataset store (an interrupted run "
-                       "resumes)")
+    p = sub.add_parser("train", help="train a surrogate variant on a dataset store (an "
+                       "interrupted run resumes); a flag left out takes the variant's setting")
     p.add_argument("--store", required=True, help="dataset store (.zarr) from the workflow")
     p.add_argument("--checkpoint", required=True, help="checkpoint file (.pt) to write; an "
                    "interrupted run of the same settings and data resumes from "
                    ".NAME.training.pt beside it")
-    p.add_argument("--model", default="unet_l1", choices=MODEL_KINDS,
-                   help="pix2pix (the paper's, 256 px), unet_gan, unet_l1 or unet (default: %(default)s)")
-    p.add_argument("--epochs", type=_positive_int, default=None, help="epochs in all (default 10)")
-    p.add_argument("--batch-size", type=_positive_int, default=None, help="default 1 (the paper's)")
-    p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate (default 2e-4)")
-    p.add_argument("--lam", type=_positive_float, default=None, help="L1 weight of GAN models (1000)")
-    p.add_argument("--base", type=_positive_int, default=None, help="U-Net first-level width (32)")
-    p.add_argument("--depth", type=_positive_int, default=None,
-                   help="U-Net levels (default: down to a 4x4 bottleneck)")
-    p.add_argument("--seed", type=_non_negative_int, default=None, help="training seed (0)")
+    p.add_argument("--variant", default=None,
+                   help="a preset of condor.surrogate.variants.PRESETS (unet, unet_l1, unet_gan, "
+                        "pix2pix) or a variant of --config (default: the workflow's, the first "
+                        "of surrogate/variants)")
+    p.add_argument("--config", nargs="+", default=None, metavar="YAML",
+                   help="workflow config file(s), layered as Snakemake layers them, whose "
+                        "surrogate/models define or change the variant and whose "
+                        "surrogate/threads is the default --threads (e.g. config/tiny.yaml: "
+                        "the tiny workflow's model, bit for bit)")
+    p.add_argument("--set", action="append", default=None, metavar="KEY=VALUE",
+                   help="change any setting of the variant (condor.surrogate.variants."
+                        "SETTING_KEYS; VALUE in YAML, e.g. --set betas=[0.9,0.99]); repeatable")
+    p.add_argument("--epochs", type=_positive_int, default=None, help="epochs in all")
+    p.add_argument("--batch-size", type=_positive_int, default=None)
+    p.add_argument("--lr", type=_positive_float, default=None, help="Adam learning rate")
+    p.add_argument("--lam", type=_positive_float, default=None, help="L1 weight of GAN models")
+    p.add_argument("--base", type=_positive_int, default=None, help="U-Net first-level width")
+    p.add_argument("--depth", type=_positive_int, default=None, help="U-Net levels")
+    p.add_argument("--seed", type=_non_negative_int, default=None, help="training seed")
     p.add_argument("--prediction-mode", default=None, choices=PREDICTION_MODES,
-                   help="BatchNorm/dropout mode for validation and prediction (eval)")
+                   help="BatchNorm/dropout mode for validation and prediction")
     p.add_argument("--max-val-samples", type=_positive_int, default=None,
-                   help="validate on at most this many samples (default: all)")
-    p.add_argument("--threads", type=_positive_int, default=None, help="torch CPU threads (default 1)")
+                   help="validate on at most this many samples")
+    p.add_argument("--threads", type=_positive_int, default=None,
+                   help="torch CPU threads (default: --config's surrogate/threads, else 1)")
     p.add_argument("--fresh", action="store_true", help="discard the epochs of an interrupted "
                    "run and start over")
     _device_arg(p)
@@ -414,12 +459,19 @@ def build_parser() -> argparse.ArgumentParser:
                         "alignment:45deg@disc(0.5,0.5,0.2)+0.5*uniformity; docs/design.md")
     p.add_argument("--checkpoint", required=True, help="surrogate checkpoint (its scene is used)")
     p.add_argument("--out", required=True, help="folder for designs.csv, drawings, predictions")
-    p.add_argument("--budget", type=_positive_int, default=2000, help="designs the surrogate scores")
-    p.add_argument("--top", type=_positive_int, default=5, help="best designs confirmed and drawn")
-    p.add_argument("--random", type=_non_negative_int, default=10,
-                   help="random searched designs also confirmed (rank correlation)")
-    p.add_argument("--replicas", type=_positive_int, default=2, help="simulations per design")
-    p.add_argument("--seed", type=_non_negative_int, default=0, help="search seed")
+    design = {key: _schema_default("design", key)  # the workflow's defaults, one home
+              for key in ("budget", "top", "random", "replicas", "seed")}
+    p.add_argument("--budget", type=_positive_int, default=design["budget"],
+                   help="designs the surrogate scores (default: %(default)s)")
+    p.add_argument("--top", type=_positive_int, default=design["top"],
+                   help="best designs confirmed and drawn (default: %(default)s)")
+    p.add_argument("--random", type=_non_negative_int, default=design["random"],
+                   help="random searched designs also confirmed, for the rank correlation "
+                        "(default: %(default)s)")
+    p.add_argument("--replicas", type=_positive_int, default=design["replicas"],
+                   help="simulations per design (default: %(default)s)")
+    p.add_argument("--seed", type=_non_negative_int, default=design["seed"],
+                   help="search seed (default: %(default)s)")
     p.add_argument("--store", default=None,
                    help="dataset store whose test moulds are the baseline to beat")
     p.add_argument("--mould", action="append", default=None,

@@ -24,15 +24,15 @@ from typing import Mapping
 import jsonschema
 import yaml
 
-from condor.anneal import T_INIT, T_RATIO
-from condor.energy import DELTA
-from condor.fields import FIELD_NAMES, window_width
-from condor.lattice import SHELL_KBAR, fcc_layers
-from condor.moulds import MouldParams, is_tether_free
-from condor.scenes import Scene, get_scene
-from condor.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
-from condor.minimise import FTOL
-from condor.store import SPLITS, StoreSpec, assign_splits
+from condor.model.anneal import T_INIT, T_RATIO
+from condor.model.energy import DELTA
+from condor.data.fields import FIELD_NAMES, window_width
+from condor.model.lattice import SHELL_KBAR, fcc_layers
+from condor.data.moulds import MouldParams, is_tether_free
+from condor.model.scenes import Scene, get_scene
+from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.model.minimise import FTOL
+from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.reference import MIN_REPLICAS
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
@@ -51,7 +51,7 @@ MAX_CELLS = 200_000
 #   beyond this fits no common machine; 18x the paper's 14 GiB;
 MAX_FIELD_BYTES = 256 * 2**30
 # - the rasteriser's kernel weights of one sample (2 axes x cells x window x 8 bytes; the
-#   window is 11 sigma in px, condor.fields): within the fields rule's 2 GB (mem_mb 2000);
+#   window is 11 sigma in px, condor.data.fields): within the fields rule's 2 GB (mem_mb 2000);
 #   the paper scene's are 5 MB;
 MAX_KERNEL_BYTES = 2**30
 # - the smallest mould (area_fraction x box^2, l0^2) the generator and the lattice build:
@@ -144,16 +144,21 @@ class Config:
         return made
 
     @classmethod
-    def load(cls, path: str | Path) -> "Config":
-        """Read a YAML config file and build the Config."""
-        path = Path(path)
-        try:
-            config = yaml.safe_load(path.read_text()) or {}
-        except (OSError, yaml.YAMLError) as err:
-            raise ConfigError(f"cannot read config {path}: {err}") from err
-        if not isinstance(config, dict):
-            raise ConfigError(f"config {path} must be a mapping of keys, got {type(config).__name__}")
-        return cls.from_dict(config)
+    def load(cls, *paths: str | Path) -> "Config":
+        """Read YAML config files and build the Config of them layered as Snakemake layers
+        them (`layered`): `Config.load("config/config.yaml", "config/tiny.yaml")` is the
+        config of `snakemake --configfile config/tiny.yaml`."""
+        configs = []
+        for path in map(Path, paths):
+            try:
+                config = yaml.safe_load(path.read_text()) or {}
+            except (OSError, yaml.YAMLError) as err:
+                raise ConfigError(f"cannot read config {path}: {err}") from err
+            if not isinstance(config, dict):
+                raise ConfigError(f"config {path} must be a mapping of keys, got "
+                                  f"{type(config).__name__}")
+            configs.append(config)
+        return cls.from_dict(layered(*configs))
 
     @classmethod
     def default(cls, **changes) -> "Config":
@@ -358,6 +363,25 @@ def check_device(device: str, what: str) -> None:
         raise ConfigError(f"{what}: device type {kind!r} is not supported (cpu or cuda)")
 
 
+def layered(*configs: Mapping) -> dict:
+    """Config dicts layered as Snakemake layers its config files (the Snakefile's
+    `configfile:`, then each --configfile in turn): a mapping updates the mapping beneath it
+    key by key, any other value replaces what was there."""
+    def update(below, above):
+        for key, value in above.items():
+            if isinstance(value, Mapping):
+                below[key] = update(below.get(key, {}) if isinstance(below.get(key), Mapping)
+                                    else {}, value)
+            else:
+                below[key] = value
+        return below
+
+    merged: dict = {}
+    for config in configs:
+        update(merged, json.loads(json.dumps(_plain(config))))
+    return merged
+
+
 def load_schema() -> dict:
     return yaml.safe_load(SCHEMA_PATH.read_text())
 
@@ -371,4 +395,4 @@ def _fill_defaults(config: dict, schema: dict) -> None:
 
 
 __all__ = ["Config", "ConfigError", "MODEL_PARAMETERS", "SCHEMA_PATH", "SPLITS", "check_device",
-           "load_schema"]
+           "layered", "load_schema"]

@@ -12,8 +12,9 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.fields import FIELD_NAMES
-from condor.metrics import BEST_WORST_FIELDS, best_worst
+from condor.data.fields import FIELD_NAMES
+from condor.measures.bars import SAME_STATES
+from condor.measures.metrics import BEST_WORST_FIELDS, best_worst
 
 _PLT = None
 
@@ -43,7 +44,7 @@ def save(fig, path, dpi: int = 110) -> Path:
 # --- moulds -----------------------------------------------------------------------------------
 
 def draw_mould(ax, mould, title: bool = True) -> None:
-    """The footprint (filled, holes open) and tethers of a condor.moulds.Mould on an Axes."""
+    """The footprint (filled, holes open) and tethers of a condor.data.moulds.Mould on an Axes."""
     from matplotlib.patches import Circle, PathPatch
     from matplotlib.path import Path as MplPath
 
@@ -287,7 +288,7 @@ def convergence_chart(df, path) -> Path:
         for k, ch in enumerate(channels):
             med = d.groupby("value")[f"change_{ch}"].median()
             line, = ax.plot(med.index, med.values, marker="o", label=ch, color=f"C{k}")
-            ax.axhline(0.5 * d[f"noise_{ch}"].median(), color=line.get_color(), ls="--", lw=0.8)
+            ax.axhline(SAME_STATES * d[f"noise_{ch}"].median(), color=line.get_color(), ls="--", lw=0.8)
         ax.set_xlabel("depth, l0" if study == "depth" else "box side, l0")
         ax.set_ylabel("systematic change vs the reference configuration\n(relative RMS, noise removed)")
         ax.set_title(f"{study} (dashed: half one simulation's scatter)", fontsize=9)

@@ -22,8 +22,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor import __version__
-from condor.store import open_store
+from condor.version import __version__
+from condor.data.store import open_store
+from condor.measures.bars import MAX_BIAS, MIN_R, R_CEILING_SLACK, SAME_STATES
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;padding:0 1em;color:#222}
@@ -275,14 +276,15 @@ def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:
         return (f"Only {n} test moulds: a Pearson r over so few moulds is not informative "
                 "(two moulds always give r = +-1); read the biases and the field errors.")
     biased = [STATISTIC_LABELS.get(r.statistic, r.statistic) for r in rows.itertuples()
-              if abs(r.bias) > 0.01]
-    short_rows = [r for r in rows.itertuples() if r.r < min(0.98, r.r_ceiling - 0.01)]
+              if abs(r.bias) > MAX_BIAS]
+    short_rows = [r for r in rows.itertuples() if r.r < min(MIN_R, r.r_ceiling - R_CEILING_SLACK)]
     short = [STATISTIC_LABELS.get(r.statistic, r.statistic) for r in short_rows]
     words = [f"{method} on {n} test moulds against the expected statistics (the replica means):"]
-    words.append(f"biased by more than 1% on {', '.join(biased)}." if biased
-                 else "no statistic is biased by more than 1%.")
-    words.append(f"The r is below both 0.98 and its ceiling - 0.01 on {', '.join(short)}."
-                 if short else "Every r is at least 0.98 or within 0.01 of its ceiling.")
+    words.append(f"biased by more than {MAX_BIAS:.0%} on {', '.join(biased)}." if biased
+                 else f"no statistic is biased by more than {MAX_BIAS:.0%}.")
+    words.append(f"The r is below both {MIN_R:g} and its ceiling - {R_CEILING_SLACK:g} on "
+                 f"{', '.join(short)}." if short else
+                 f"Every r is at least {MIN_R:g} or within {R_CEILING_SLACK:g} of its ceiling.")
     if any(r.statistic in ORIENTATION_STATISTICS for r in short_rows):
         words.append(MORE_MOULDS)
     return " ".join(words)
@@ -303,7 +305,7 @@ def ladder_verdict(ladder: pd.DataFrame) -> str:
     if rungs.empty:
         return "The ladder has no finished rung."
     longest = rungs[rungs["budget"] == rungs["budget"].max()]
-    far = longest[longest["distance_to_dataset"] > 0.5 * longest["spread"]]
+    far = longest[longest["distance_to_dataset"] > SAME_STATES * longest["spread"]]
     budget = f"{rungs['budget'].max():g}"
     if far.empty:
         return (f"On every ladder mould, the anneal of {budget} moves per cell (then relaxed) lands "
@@ -325,7 +327,7 @@ def fidelity_verdict(fidelity: pd.DataFrame) -> str:
     words = []
     for i, row in enumerate(fidelity.itertuples()):
         ratio = row.distance_hi / row.replica_noise
-        state = ("not resolved from it" if row.distance_hi <= 0.5 * row.replica_noise
+        state = ("not resolved from it" if row.distance_hi <= SAME_STATES * row.replica_noise
                  else "resolved from it")
         name = f"the dataset's solver ({row.method})" if i == 0 else row.method
         words.append(f"{name} lands {_interval(row.distance, row.distance_lo, row.distance_hi)}"
@@ -412,7 +414,7 @@ def _accuracy_section(inp) -> Section:
         paragraph("The truth of every figure is a mould's expected fields: the mean over its "
                   "replicas (the same mould simulated with several seeds). Errors are RMS over "
                   "the 8 normalised fields and the pixels, with the replicas' own noise removed "
-                  "(condor.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
+                  "(condor.measures.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
                   "over moulds."),
         table(main, "Every method: CPU seconds per mould, field error against the expected "
                     "fields [95% interval], the plain error and the moulds scored.", digits=3),

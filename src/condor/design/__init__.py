@@ -3,8 +3,11 @@ the surrogate, and confirmation by simulation. See docs/design.md.
 
     objective = parse_objective("alignment:x", pixels=predictor.native)
     space = default_space(scene, objective)
-    result = search(objective, space, predictor, budget=2000, seed=0)
-    confirmation = confirm(result, scene, n_top=5, n_random=10, replicas=3, baseline=...)
+    result = search(objective, space, predictor, budget, seed=0)
+    confirmation = confirm(result, scene, n_top, n_random, replicas, baseline=...)
+
+The numbers (budget, n_top, ...) have one home: the workflow config's `design:` defaults
+(the packaged schema), which the workflow and the CLI pass.
 """
 
 from .confirm import (Confirmation, SimulatedDesigns, agreement, baseline_objectives, confirm,

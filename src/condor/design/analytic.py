@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from condor.scenes import SIGMA_L0
+from condor.model.scenes import SIGMA_L0
 from condor.surrogate.baselines import gaussian_blur
 
 

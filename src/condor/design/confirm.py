@@ -5,7 +5,7 @@ random sample of the others, stratified over the predicted objective (one draw p
 equal-width bin) so that the rank correlation measures how the surrogate orders the range
 of designs the search saw, not only the seed noise among near-equal top designs.
 
-`simulate_designs` simulates each with replicas (condor.simulate.simulate, seeds by the
+`simulate_designs` simulates each with replicas (condor.model.simulate.simulate, seeds by the
 replica convention, `replica_seeds`) and computes the simulated objective from the
 replica-mean normalised fields (the expected organisation), plus the spread of the
 per-replica objective. `baseline_objectives` does the same for a set of already simulated
@@ -24,11 +24,12 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from condor.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pearson_r
-from condor.fields import cell_fields, normalise
-from condor.moulds import Mould, input_channels
-from condor.seeds import replica_seed
-from condor.simulate import simulate
+from condor.measures.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pearson_r
+from condor.data.fields import cell_fields, normalise
+from condor.data.moulds import Mould, input_channels
+from condor.data.seeds import replica_seed
+from condor.model.scenes import same_length
+from condor.model.simulate import simulate
 
 from .objectives import Objective
 from .search import SearchResult
@@ -36,7 +37,7 @@ from .search import SearchResult
 
 def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
     """Simulation seeds of replicas 0..replicas-1 of mould `mould_id` under global seed
-    `seed`: condor.seeds.replica_seed, the store's convention (replica 0 is the stream of a
+    `seed`: condor.data.seeds.replica_seed, the store's convention (replica 0 is the stream of a
     dataset's own sample)."""
     if isinstance(replicas, bool) or not isinstance(replicas, (int, np.integer)) or replicas < 1:
         raise ValueError(f"replicas = {replicas!r} must be a positive integer")
@@ -46,7 +47,7 @@ def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
 # --------------------------------------------------------------------------- selection
 
 
-def select_for_confirmation(result: SearchResult, n_top: int = 5, n_random: int = 10,
+def select_for_confirmation(result: SearchResult, n_top: int, n_random: int,
                             seed: int = 0, min_difference: float = 0.02) -> pd.DataFrame:
     """Rows of result.designs to simulate, with a `role` column ("top" or "random").
 
@@ -213,7 +214,7 @@ def baseline_objectives(objective: Objective, fields: np.ndarray, n_cells,
 
 def dataset_baseline(objective: Objective, ds, split: str = "test") -> pd.DataFrame:
     """The simulated objective of the moulds of one split of a dataset store opened with
-    xarray (condor.store's layout: per sample fields, n_cells, status, split, and mould /
+    xarray (condor.data.store's layout: per sample fields, n_cells, status, split, and mould /
     replica when the store holds replicas): per mould, the objective of the mean of its ok
     replicas' normalised fields. One row per mould: mould_id, n_replicas, objective and
     quantities."""
@@ -254,7 +255,7 @@ def _pairs_spearman(pairs: np.ndarray) -> float:
 
 def agreement(predicted, simulated, n_boot: int = BOOTSTRAP_SAMPLES, seed: int = 0) -> dict:
     """Predicted against simulated objective over n designs: spearman (with a percentile
-    bootstrap interval over designs, condor.estimators.bootstrap_interval), pearson, bias =
+    bootstrap interval over designs, condor.measures.estimators.bootstrap_interval), pearson, bias =
     mean(predicted - simulated) (with its interval), median_difference, relative_bias =
     median(predicted / simulated - 1) (NaN unless every simulated value is positive: the
     objective may change sign)."""
@@ -345,8 +346,8 @@ class Confirmation:
     simulated: SimulatedDesigns
 
 
-def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
-            replicas: int = 3, baseline: pd.DataFrame | None = None,
+def confirm(result: SearchResult, scene, n_top: int, n_random: int,
+            replicas: int, baseline: pd.DataFrame | None = None,
             solver: str | None = None, budget: float | None = None, seed: int | None = None,
             map_fn=map, progress: bool | None = None) -> Confirmation:
     """select_for_confirmation + simulate_designs + confirmation_table + design_summary.
@@ -355,7 +356,7 @@ def confirm(result: SearchResult, scene, n_top: int = 5, n_random: int = 10,
     given (designs are numbered by evaluation, so their ids are distinct).
     """
     seed = result.seed if seed is None else int(seed)
-    if scene.pixels != result.pixels or abs(scene.box - result.space.box) > 1e-9 * scene.box:
+    if scene.pixels != result.pixels or not same_length(scene.box, result.space.box):
         raise ValueError(f"scene {scene.name!r} ({scene.box:g} l0, {scene.pixels} px) is not the "
                          f"search's ({result.space.box:g} l0, {result.pixels} px)")
     selection = select_for_confirmation(result, n_top, n_random, seed)

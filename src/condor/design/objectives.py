@@ -1,7 +1,7 @@
 """Design objectives a tissue engineer asks for, computed from normalised fields.
 
-Every quantity is a function of the normalised fields F (condor.fields.normalise; channels
-condor.fields.FIELD_NAMES = P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz) summed over the pixels p
+Every quantity is a function of the normalised fields F (condor.data.fields.normalise; channels
+condor.data.fields.FIELD_NAMES = P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz) summed over the pixels p
 of a region R (the whole grid by default: sums over the grid are sums over the cells, so "the
 tissue" needs no threshold). Each field pixel is a kernel-weighted sum over cells, so a sum of
 a field over a region is a (kernel-weighted) sum over the cells in it.
@@ -47,7 +47,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import pandas as pd
 
-from condor.fields import FIELD_NAMES
+from condor.data.fields import FIELD_NAMES
 
 _P, _T, _SX2, _SY2, _SXSY = (FIELD_NAMES.index(n) for n in ("P", "T", "Sx2", "Sy2", "SxSy"))
 
@@ -277,7 +277,7 @@ class Objective:
 
     def evaluate_raw(self, raw: np.ndarray, n_cells) -> pd.DataFrame:
         """`evaluate` of un-normalised fields (S, 8, H, W) with their cell counts (S,)."""
-        from condor.fields import normalise
+        from condor.data.fields import normalise
 
         return self.evaluate(normalise(np.asarray(raw), n_cells))
 

@@ -1,7 +1,7 @@
 """Search the design space with CMA-ES (`cma`), scoring batches of candidates with the surrogate.
 
 One generation = one batch: decode each vector into a mould (condor.design.space), rasterise
-it at the predictor's native size (condor.moulds.input_channels), predict the fields, and
+it at the predictor's native size (condor.data.moulds.input_channels), predict the fields, and
 score the normalised fields with the objective:
 
     score = objective - penalty * constraint violation - repair_weight * repair
@@ -31,8 +31,8 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from condor.moulds import Mould, input_channels
-from condor.scenes import SIGMA_L0
+from condor.data.moulds import Mould, input_channels
+from condor.model.scenes import SIGMA_L0, same_length
 
 from .objectives import Objective
 from .space import DesignSpace
@@ -128,7 +128,7 @@ def _native_pixels(predictor, space: DesignSpace) -> int:
     if isinstance(pixels, bool) or not isinstance(pixels, (int, np.integer)) or pixels < 1:
         raise DesignSearchError(f"predictor {predictor!r} has no native grid size (`native`)")
     box = getattr(predictor, "box", None)
-    if box is not None and not math.isclose(float(box), space.box, rel_tol=1e-6):
+    if box is not None and not same_length(box, space.box):
         raise DesignSearchError(f"the predictor was trained on a {float(box):g} l0 box but the "
                                 f"design space's box is {space.box:g} l0: use the scene the "
                                 "checkpoint was trained on")
@@ -213,7 +213,7 @@ def _to_minimise(scores: np.ndarray) -> list[float]:
     return [float(-s) if np.isfinite(s) else float(-worst) for s in scores]
 
 
-def search(objective: Objective, space: DesignSpace, predictor, budget: int = 2000,
+def search(objective: Objective, space: DesignSpace, predictor, budget: int,
            seed: int = 0, popsize: int | None = None, sigma0: float = 0.5,
            n_init: int | None = None, penalty: float = 10.0, repair_weight: float = 0.05,
            progress: bool | None = None) -> SearchResult:
@@ -380,7 +380,7 @@ def predict_designs(objective: Objective, moulds: list[Mould], predictor,
                     seed: int = 0, n_cells=None) -> DesignPrediction:
     """Predict the fields and objective of `moulds` (rasterised at the predictor's native
     size). sigma_px: the fields' kernel width in pixels, for objective_spread (default: the
-    scene kernel condor.scenes.SIGMA_L0 at the moulds' box). n_cells: each mould's cell count
+    scene kernel condor.model.scenes.SIGMA_L0 at the moulds' box). n_cells: each mould's cell count
     (its lattice count), for a predictor that takes one."""
     moulds = list(moulds)
     if not moulds:

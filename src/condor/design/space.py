@@ -35,7 +35,7 @@ to stay feasible, while every returned mould is valid):
   * at least `min_tethers` tethers: fewer is allowed (still a valid mould) but each missing
     tether adds 1 to repair.
 
-Every mould `decode` returns passes condor.moulds.validate_mould (checked on each decode).
+Every mould `decode` returns passes condor.data.moulds.validate_mould (checked on each decode).
 """
 
 from __future__ import annotations
@@ -48,8 +48,8 @@ import numpy as np
 import shapely
 from shapely.geometry import Polygon
 
-from condor.lattice import HALF
-from condor.moulds import InvalidMouldError, Mould, validate_mould
+from condor.model.lattice import HALF
+from condor.data.moulds import InvalidMouldError, Mould, validate_mould
 
 SYMMETRY_KINDS = ("none", "single_mirror", "double_mirror", "cyclic", "dihedral")
 _GENES_PER_TETHER = 4
@@ -184,7 +184,7 @@ class DesignSpace:
 
     @classmethod
     def from_scene(cls, scene, **overrides) -> "DesignSpace":
-        """The space for a condor.scenes.Scene (box, area fraction and extent of its dataset)."""
+        """The space for a condor.model.scenes.Scene (box, area fraction and extent of its dataset)."""
         settings = {"box": scene.box, "area_fraction": scene.area_fraction,
                     "max_extent": scene.max_extent, **overrides}
         return cls(**settings)

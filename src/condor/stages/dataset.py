@@ -26,15 +26,17 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor import inputs as model_inputs, plots
+from condor.data import inputs as model_inputs
+
+from condor import plots
 from condor.config import Config
-from condor.fields import cell_fields
-from condor.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
+from condor.data.fields import cell_fields
+from condor.data.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
 from condor.progress import progress
-from condor.scenes import Scene
-from condor.seeds import replica_seed
-from condor.simulate import SimResult, simulate, warm_up
-from condor.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
+from condor.model.scenes import Scene, same_length
+from condor.data.seeds import replica_seed
+from condor.model.simulate import SimResult, simulate, warm_up
+from condor.data.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
                           sample_index, write_expected, write_inputs, write_sample)
 
 log = logging.getLogger("condor")
@@ -88,7 +90,7 @@ def mould_metadata(mould: Mould) -> dict:
 
 def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | None = None) -> list:
     """Generate moulds `ids`; write their geometry to `out_json` and, when `store` is given,
-    their input channels (masks and lattice channels, condor.inputs) and metadata into the
+    their input channels (masks and lattice channels, condor.data.inputs) and metadata into the
     store (every replica)."""
     params = config.mould_params()
     moulds = [make_mould(config.scene, config.seed, i, params) for i in ids]
@@ -182,7 +184,7 @@ def rasterise_result(result: SimResult, scene: Scene) -> np.ndarray:
     """The 8 fields of a result on `scene`'s grid; SceneMismatchError when the result was
     simulated for another box."""
     recorded = result.info.get("scene")
-    if recorded is not None and abs(float(recorded["box"]) - scene.box) > 1e-9 * scene.box:
+    if recorded is not None and not same_length(recorded["box"], scene.box):
         raise SceneMismatchError(
             f"the simulation belongs to scene {recorded.get('name')!r} (box {recorded['box']:g} "
             f"l0), not {scene.name!r} (box {scene.box:g} l0): pass --scene {recorded.get('name')}")
@@ -235,7 +237,7 @@ class IncompleteStoreError(RuntimeError):
 
 def finish_dataset(store: str | Path, out_csv: str | Path, split=None) -> pd.DataFrame:
     """Write again whatever of the store's layout is lost or damaged (the coordinates, each
-    sample's mould, replica and, given the per-mould `split`, split: condor.store.
+    sample's mould, replica and, given the per-mould `split`, split: condor.data.store.
     restore_layout), derive the expected fields of replicated moulds, then write the
     per-sample table. IncompleteStoreError, one line naming the samples, their damaged arrays
     and the way out, when a sample is missing, pending or corrupt."""

@@ -33,13 +33,13 @@ import xarray as xr
 from condor import plots
 from condor.design import (confirm, dataset_baseline, default_space, design_table,
                            parse_objective, predict_designs, search, simulate_designs)
-from condor.drawings import write_dxf, write_svg
-from condor.fields import FIELD_NAMES
+from condor.data.drawings import write_dxf, write_svg
+from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
-from condor.lattice import build_lattice
-from condor.moulds import save_json
-from condor.scenes import Scene
-from condor.store import CHANNELS, open_store, quiet_zarr
+from condor.model.lattice import build_lattice
+from condor.data.moulds import save_json
+from condor.model.scenes import Scene, same_length
+from condor.data.store import CHANNELS, open_store, quiet_zarr
 from condor.surrogate.predict import Predictor
 
 log = logging.getLogger("condor")
@@ -140,17 +140,18 @@ def _out_dir(out_dir, force: bool, n_top: int) -> Path:
     return out_dir
 
 
-def design(scene: Scene, checkpoint, out_dir, objective: str, budget: int = 2000,
-           seed: int = 0, n_top: int = 5, n_random: int = 10, replicas: int = 2,
-           store=None, l0_um: float | None = None, solver: str | None = None,
+def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, seed: int,
+           n_top: int, n_random: int, replicas: int, store=None, l0_um: float | None = None, solver: str | None = None,
            your_moulds=(), force: bool = False, progress: bool | None = None) -> pd.DataFrame:
-    """Search, confirm and hand over (module docstring); returns the summary row. Every
+    """Search, confirm and hand over (module docstring); returns the summary row. The
+    numbers have one home, the workflow config's `design:` defaults (the packaged schema),
+    which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
-    search runs. `your_moulds`: condor.moulds.Mould objects (a user's own designs) scored the
+    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored the
     same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
     predictor = Predictor(checkpoint, device="cpu")
     if predictor.native != scene.pixels or predictor.box is None or \
-            abs(predictor.box - scene.box) > 1e-9 * scene.box:
+            not same_length(predictor.box, scene.box):
         raise DesignOutputError(f"checkpoint {str(checkpoint)!r} was trained on {predictor.native} "
                                 f"px of box {predictor.box} l0, not the {scene.name!r} scene")
     parsed = parse_objective(objective, pixels=scene.pixels, max_extent=scene.max_extent)

@@ -21,8 +21,9 @@ from pathlib import Path
 import pandas as pd
 
 from condor.config import check_device
+from condor.model.scenes import same_length
 from condor.plots import evaluation_figures, learning_curves
-from condor.store import open_store
+from condor.data.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.evaluate import combine_summaries
 from condor.surrogate.evaluate import evaluate as evaluate_checkpoint
@@ -104,7 +105,7 @@ def check_same_grid(state: dict, ds, checkpoint, store) -> None:
     trained_pixel = data.get("pixel_size")
     if data.get("native_size") != native or (
             pixel is not None and trained_pixel is not None
-            and abs(float(pixel) - float(trained_pixel)) > 1e-9 * float(pixel)):
+            and not same_length(pixel, trained_pixel)):
         raise CheckpointMismatchError(
             f"checkpoint {str(checkpoint)!r} was trained on {data.get('native_size')} px of "
             f"{trained_pixel} l0; store {str(store)!r} is {native} px of {pixel} l0 "

@@ -5,7 +5,7 @@ of each test mould). For each method (simulations of `sweep`, surrogates, baseli
 dataset solver's own "single simulation" and "mean of k simulations") this module returns:
 
 - `accuracy` rows: the field error against the expected fields, with the finite-replica noise
-  removed (condor.estimators: an RMS over the 8 normalised fields, pixels and moulds), its
+  removed (condor.measures.estimators: an RMS over the 8 normalised fields, pixels and moulds), its
   bootstrap interval over moulds, the plain (uncorrected) error, per-field errors and the CPU
   seconds per mould. The row "single simulation" is the noise ceiling: what one run of the
   dataset's solver scores.
@@ -26,9 +26,9 @@ from dataclasses import dataclass
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import FIELD_NAMES, STATISTICS, normalise
-from condor.metrics import normalise_predicted, paper_r, statistics_frame
+from condor.measures import estimators as est
+from condor.data.fields import FIELD_NAMES, STATISTICS, normalise
+from condor.measures.metrics import normalise_predicted, paper_r, statistics_frame
 from condor.surrogate.calibration import interval_coverage, spread_agreement, tissue_pixels
 
 ACCURACY_COLUMNS = ("method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",

@@ -2,7 +2,7 @@
 
 Each configuration (a depth, or a box scale) of a mould is simulated with several seeds: an
 ensemble. Its systematic change is the noise-corrected distance between its mean fields and
-the mean fields of the reference configuration (the deepest / largest; condor.estimators.
+the mean fields of the reference configuration (the deepest / largest; condor.measures.estimators.
 ensemble_distance), per channel, relative to the RMS of the reference's expected fields. It is
 compared with the scatter of one simulation about its own expected fields (the noise). A
 reduction whose systematic change stays below half the scatter of one simulation, on every
@@ -20,15 +20,15 @@ import math
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import FIELD_NAMES, cell_fields, normalise
-from condor.lattice import HALF
-from condor.moulds import generate_mould
+from condor.measures import estimators as est
+from condor.measures.bars import SAME_STATES
+from condor.data.fields import FIELD_NAMES, cell_fields, normalise
+from condor.model.lattice import HALF
+from condor.data.moulds import generate_mould
 from condor.progress import progress
-from condor.seeds import study_seed
-from condor.simulate import simulate
+from condor.data.seeds import study_seed
+from condor.model.simulate import simulate
 
-JUSTIFIED_FRACTION = 0.5  # of one simulation's scatter
 SCORED_FIELDS = ("P", "T", "Sx2", "Sy2", "Sz2")
 
 
@@ -62,7 +62,7 @@ def _rows(study, mould_id, runs: dict, ref_value) -> list[dict]:
                "cpu_s": seconds, "reference": bool(value == ref_value)}
         row.update({f"change_{f}": float(v) for f, v in zip(FIELD_NAMES, rel)})
         row.update({f"noise_{f}": float(v) for f, v in zip(FIELD_NAMES, noise)})
-        row["justified"] = bool(all(row[f"change_{c}"] <= JUSTIFIED_FRACTION * row[f"noise_{c}"]
+        row["justified"] = bool(all(row[f"change_{c}"] <= SAME_STATES * row[f"noise_{c}"]
                                     for c in SCORED_FIELDS))
         rows.append(row)
     return rows

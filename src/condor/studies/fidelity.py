@@ -19,12 +19,12 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import FIELD_NAMES
+from condor.measures import estimators as est
+from condor.measures.bars import SAME_STATES
+from condor.data.fields import FIELD_NAMES
 
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
-CONVERGED_FRACTION = 0.5  # the bar: distance_hi at most this x the replica noise
 _P, _ORIENT = FIELD_NAMES.index("P"), [FIELD_NAMES.index(f) for f in ("Sx2", "Sy2", "Sz2")]
 
 
@@ -63,7 +63,7 @@ def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
         row.update(energy_difference_pct=mean, energy_difference_pct_lo=lo,
                    energy_difference_pct_hi=hi,
                    energy_difference_pct_max=float(ratio[np.argmax(np.abs(ratio))]))
-    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
     return row
 
 
@@ -72,8 +72,8 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
     """`replicas` simulations of each mould with `solver` (the dataset's replica seeds, so the
     dataset's own solver reproduces its store): normalised fields (M, R, 8, H, W), energies
     per cell and evaluation-equivalents (M, R); a failed run is NaN."""
-    from condor.seeds import replica_seed
-    from condor.simulate import simulate
+    from condor.data.seeds import replica_seed
+    from condor.model.simulate import simulate
     from condor.studies.paper_reference import mould_of, scene_fields
 
     fields = np.full((len(mould_ids), replicas, 8, scene.pixels, scene.pixels), np.nan)
@@ -100,7 +100,7 @@ def paper_ensemble(scene, dataset_seed: int, folder=None):
     (mould ids, normalised fields (M, R, 8, H, W), energies per cell (M, R), label such as
     'anneal 1e5'), NaN-padded; None when there is none (or the scene is not the preset the
     references were run in) or no mould has 2 runs."""
-    from condor.scenes import PRESETS
+    from condor.model.scenes import PRESETS
     from condor.studies.paper_reference import budget_tag, load_reference, reference_moulds
 
     if scene.name not in PRESETS or scene != PRESETS[scene.name]:
@@ -159,6 +159,6 @@ def prediction_row(method: str, scene: str, reference: str, predicted, ref_field
     for name, values in zip(("sx2", "sy2", "sz2"), diff.T):
         row[f"{name}_difference"] = float(np.mean(values))
         row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
-    row["converged"] = bool(hi <= CONVERGED_FRACTION * row["replica_noise"])
+    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
     row["moulds"] = " ".join(map(str, moulds))
     return row

@@ -4,7 +4,7 @@
 the ladder (an anneal budget, then tight relaxation: `reference.anneal_then_relax`) is run with
 several seeds: an ensemble. Each rung's expected fields are compared with the dataset
 solver's (the store's replicas of the same moulds) by the noise-corrected distance between
-ensemble means (condor.estimators.ensemble_distance), beside the scatter of one simulation
+ensemble means (condor.measures.estimators.ensemble_distance), beside the scatter of one simulation
 within each ensemble. A rung whose distance is well below that scatter samples the same
 states; energies per cell say which family of minima is lower.
 """
@@ -14,10 +14,10 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from condor import estimators as est
-from condor.fields import cell_fields, normalise
+from condor.measures import estimators as est
+from condor.data.fields import cell_fields, normalise
 from condor.progress import progress
-from condor.seeds import study_seed
+from condor.data.seeds import study_seed
 from condor.studies.reference import anneal_then_relax
 
 
@@ -26,7 +26,7 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
     """One row per (mould, rung) plus the dataset solver's own row per mould: runs, energy per
     cell (median, min, max), `distance_to_dataset` (RMS over normalised fields, noise removed),
     `spread` (one simulation's RMS scatter within the rung), and annealer diagnostics.
-    `moulds`: condor.moulds.Mould objects of ensemble.moulds (same order)."""
+    `moulds`: condor.data.moulds.Mould objects of ensemble.moulds (same order)."""
     truth = ensemble.normalised
     rows = []
     for m, mould in enumerate(moulds):

@@ -7,7 +7,7 @@ each rung starts from the same orientations) and used by no replica of the datas
 
 `run_reference` keeps each finished run as a SimResult file under the cache folder, and the
 anneal's checkpoint beside it while it runs: a killed ladder loses at most
-`condor.anneal.CHECKPOINT_SECONDS` of work and resumes bit-identically.
+`condor.model.anneal.CHECKPOINT_SECONDS` of work and resumes bit-identically.
 """
 
 from __future__ import annotations
@@ -18,14 +18,14 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.fields import cell_fields, normalise
-from condor.moulds import generate_mould
-from condor.scenes import Scene
-from condor.seeds import study_seed
-from condor.simulate import SimResult
+from condor.data.fields import cell_fields, normalise
+from condor.data.moulds import generate_mould
+from condor.model.scenes import Scene
+from condor.data.seeds import study_seed
+from condor.model.simulate import SimResult
 from condor.studies.reference import anneal_then_relax
 
-REFERENCE_RUN = 5000  # study-stream offset of the reference runs (`condor.seeds.study_seed`)
+REFERENCE_RUN = 5000  # study-stream offset of the reference runs (`condor.data.seeds.study_seed`)
 
 
 def reference_seed(dataset_seed: int, mould_id: int, k: int) -> int:

@@ -19,11 +19,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from condor.energy import random_orientations
-from condor.fields import normalise
-from condor.lattice import build_lattice
-from condor.simulate import SimResult, simulate_lattice
-from condor.store import open_store
+from condor.model.energy import random_orientations
+from condor.data.fields import normalise
+from condor.model.lattice import build_lattice
+from condor.model.simulate import SimResult, simulate_lattice
+from condor.data.store import open_store
 
 TIGHT_FTOL = 1.0e-5  # kappa0 l0: the references' force tolerance
 TIGHT_MAX_ITER = 20000  # minimiser evaluations at most after the anneal
@@ -35,7 +35,7 @@ def anneal_then_relax(mould, depth: float, budget: float, seed: int,
                       ftol: float = TIGHT_FTOL, checkpoint=None, log=None) -> SimResult:
     """Anneal `budget` moves per cell, then RELAX_SOLVER to `ftol`; `seconds` and
     `info["evaluations"]` are the sums of both. checkpoint, log: the anneal's
-    (`condor.anneal.anneal`): a long anneal saves its state there and resumes from it."""
+    (`condor.model.anneal.anneal`): a long anneal saves its state there and resumes from it."""
     lattice = build_lattice(mould.polygon, mould.tethers, depth)
     start = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
     annealed = simulate_lattice(lattice, lattice.positions, start, "anneal", budget, seed,
@@ -57,8 +57,8 @@ def anneal_then_relax(mould, depth: float, budget: float, seed: int,
 class Ensemble:
     """Replicas of M moulds: raw fields (M, R, 8, H, W), cell counts N_c (M,), inputs
     (M, 2, H, W) (the masks), the pixel side in l0, per replica (M, R) its CPU seconds and
-    energy per cell, and the lattice channels (M, 2, H, W; condor.inputs). A mould with fewer
-    replicas than R is NaN-padded after its own (condor.estimators), as the tether-free test
+    energy per cell, and the lattice channels (M, 2, H, W; condor.data.inputs). A mould with fewer
+    replicas than R is NaN-padded after its own (condor.measures.estimators), as the tether-free test
     moulds hold more."""
 
     moulds: np.ndarray

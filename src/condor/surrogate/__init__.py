@@ -4,7 +4,7 @@ fields, with training, evaluation, prediction and baselines. See docs/surrogate.
 from .baselines import MaskedMeanBaseline, MouldBlurBaseline
 from .checkpoint import (CheckpointError, CheckpointMismatchError, CheckpointNotFoundError,
                          load_checkpoint)
-from .data import FieldScaling, compute_scaling, resample_fields, resample_masks, usable_samples
+from .samples import FieldScaling, compute_scaling, resample_fields, resample_masks, usable_samples
 from .evaluate import (combine_summaries, evaluate, evaluate_baselines, evaluate_predictions,
                        pearson_r)
 from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator,

@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..scenes import SIGMA_L0
+from ..model.scenes import SIGMA_L0
 
 
 def gaussian_matrix(n: int, sigma_px: float) -> np.ndarray:

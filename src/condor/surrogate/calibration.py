@@ -48,7 +48,7 @@ def interval_coverage(mean, spread, replicas, mask, levels=LEVELS, fields=None) 
     """Per mould (M,), for each level q: the fraction of replica values (every replica, every
     field in `fields` (indices; default all), every pixel in `mask`) inside mean -/+ z_q
     spread. mean, spread (M, F, H, W); replicas (M, R, F, H, W), NaN-padded where a mould
-    holds fewer (condor.estimators: only its own count); mask (M, H, W)."""
+    holds fewer (condor.measures.estimators: only its own count); mask (M, H, W)."""
     mean, spread, replicas, mask = _check(mean, spread, replicas, mask)
     chosen = slice(None) if fields is None else list(fields)
     distance = np.abs(replicas - mean[:, None])[:, :, chosen]

@@ -9,7 +9,7 @@ from pathlib import Path
 
 import torch
 
-from .data import FieldScaling
+from .samples import FieldScaling
 from .models import PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator
 
 FORMAT = "condor-surrogate/1"

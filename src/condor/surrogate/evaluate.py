@@ -1,5 +1,5 @@
 """Evaluation on the test split, as the paper reports it: per-field MAE per sample, the best
-and worst samples for Sx2 and T, and whole-mould statistics (condor.fields.mould_statistics)
+and worst samples for Sx2 and T, and whole-mould statistics (condor.data.fields.mould_statistics)
 of simulation against prediction with their Pearson r, next to the paper's values. Baselines
 (baselines.py) and BatchNorm/dropout prediction modes are evaluated with the same metrics."""
 
@@ -12,12 +12,12 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor.estimators import pearson_r  # noqa: F401  (re-exported: the paper's r)
-from condor.metrics import (best_worst, correlation_table, mae_frame,  # noqa: F401
+from condor.measures.estimators import pearson_r  # noqa: F401  (re-exported: the paper's r)
+from condor.measures.metrics import (best_worst, correlation_table, mae_frame,  # noqa: F401
                             paper_r, statistics_frame)
 
 from .baselines import fit_baselines
-from .data import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
+from .samples import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
 from .predict import Predictor
 
 

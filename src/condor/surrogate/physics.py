@@ -57,7 +57,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from .data import FIELD_NAMES, PAIRED_FIELDS
+from .samples import FIELD_NAMES, PAIRED_FIELDS
 
 N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
@@ -257,7 +257,7 @@ def check_field_weights(weights) -> np.ndarray:
 def area_threshold_per_pixel(pixel_size: float) -> float:
     """The paper's N(P>0.2) threshold (fields.DENSITY_THRESHOLD cells per paper pixel) in
     cells per pixel of side `pixel_size` (l0), as fields.mould_statistics applies it."""
-    from condor.fields import DENSITY_THRESHOLD, PAPER_PIXEL_SIZE
+    from condor.data.fields import DENSITY_THRESHOLD, PAPER_PIXEL_SIZE
     return DENSITY_THRESHOLD * (float(pixel_size) / PAPER_PIXEL_SIZE) ** 2
 
 
@@ -293,20 +293,20 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
 # --- the cell count N_c -----------------------------------------------------------------------
 
 def n_cells_of_mould(polygon, tethers, depth: float) -> int:
-    """N_c of a mould: its lattice site count (condor.lattice.build_lattice), exactly the
+    """N_c of a mould: its lattice site count (condor.model.lattice.build_lattice), exactly the
     number of cells the simulation rasterises."""
-    from condor.lattice import build_lattice
+    from condor.model.lattice import build_lattice
 
     return int(build_lattice(polygon, tethers, depth).n_cells)
 
 
 def estimate_n_cells(inputs: np.ndarray, pixel_size: float, depth: float) -> np.ndarray | float:
     """N_c estimated from input channels (2, H, W) or (S, 2, H, W) (mould, tether; 0/1): the
-    FCC sites of condor.lattice.build_lattice (origin at the centre of the occupied pixels'
-    bounding box) whose (x, y) falls in an occupied pixel (condor.inputs.mask_sites). Exact up
+    FCC sites of condor.model.lattice.build_lattice (origin at the centre of the occupied pixels'
+    bounding box) whose (x, y) falls in an occupied pixel (condor.data.inputs.mask_sites). Exact up
     to the pixelation of the outline (measured error in docs/surrogate.md); prefer
     n_cells_of_mould when the geometry is known."""
-    from condor.inputs import mask_sites
+    from condor.data.inputs import mask_sites
 
     inputs = np.asarray(inputs)
     single = inputs.ndim == 3

@@ -10,12 +10,12 @@ import numpy as np
 import torch
 import xarray as xr
 
-from condor.inputs import stress_channels
-from condor.metrics import density_sums, normalise_predicted
-from condor.store import quiet_zarr
+from condor.data.inputs import stress_channels
+from condor.measures.metrics import density_sums, normalise_predicted
+from condor.data.store import quiet_zarr
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
-from .data import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
+from .samples import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
                    resample_fields, resample_inputs)
 from .models import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells
@@ -151,18 +151,18 @@ class Predictor:
     @property
     def sigma(self) -> float:
         """The fields' kernel width (l0) of the training scene."""
-        from condor.scenes import SIGMA_L0
+        from condor.model.scenes import SIGMA_L0
 
         return float(self.state["data"].get("sigma") or SIGMA_L0)
 
     @property
     def needs_lattice(self) -> bool:
-        """True when the network reads the lattice channels (condor.inputs), not the masks."""
+        """True when the network reads the lattice channels (condor.data.inputs), not the masks."""
         return "lattice" in INPUT_VARIABLES[self.inputs_kind]
 
     def lattice_of(self, mould) -> np.ndarray:
-        """The exact lattice channels (2, H, W) of a condor.moulds.Mould on the training grid."""
-        from condor.inputs import lattice_channels
+        """The exact lattice channels (2, H, W) of a condor.data.moulds.Mould on the training grid."""
+        from condor.data.inputs import lattice_channels
 
         if self.box is None or self.depth is None:
             raise ValueError(f"checkpoint {self.path!r} records no pixel size or depth")
@@ -170,9 +170,9 @@ class Predictor:
                                 self.sigma)
 
     def estimate_lattice(self, inputs: np.ndarray) -> np.ndarray:
-        """Lattice channels from masks alone (condor.inputs.estimate_lattice_channels):
+        """Lattice channels from masks alone (condor.data.inputs.estimate_lattice_channels):
         approximate; a mould's geometry gives the exact ones (lattice_of)."""
-        from condor.inputs import estimate_lattice_channels
+        from condor.data.inputs import estimate_lattice_channels
 
         if self.pixel_size is None or self.depth is None:
             raise ValueError(f"checkpoint {self.path!r} records no pixel size or depth; pass "
@@ -180,10 +180,10 @@ class Predictor:
         return estimate_lattice_channels(inputs, self.pixel_size, self.depth, self.sigma)
 
     def mould_arguments(self, moulds) -> dict:
-        """Keyword arguments of __call__ for condor.moulds.Mould objects beyond their masks:
+        """Keyword arguments of __call__ for condor.data.moulds.Mould objects beyond their masks:
         each mould's exact N_c and, for a lattice checkpoint, its lattice channels."""
-        from condor.inputs import channels_of_sites
-        from condor.lattice import lattice_sites
+        from condor.data.inputs import channels_of_sites
+        from condor.model.lattice import lattice_sites
 
         if self.depth is None:
             return {}
@@ -236,7 +236,7 @@ class Predictor:
                 lattice = self.estimate_lattice(batch)
             else:
                 lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
-        by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (data.py)
+        by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (samples.py)
         for name in ("stress", "stress_tensor"):
             if name in INPUT_VARIABLES[self.inputs_kind]:
                 by_variable[name] = stress_channels(batch, name == "stress_tensor")
@@ -286,7 +286,7 @@ def _png_channels(path) -> np.ndarray:
 def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray:
     """Input channels (2, pixels, pixels) uint8 given as a picture of them: a (2, H, W) 0/1
     .npy array (mould, tether) or a two-channel .png (see _png_channels), at the checkpoint's
-    grid. (A mould itself, as JSON, SVG or DXF: condor.drawings.load_mould.)"""
+    grid. (A mould itself, as JSON, SVG or DXF: condor.data.drawings.load_mould.)"""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npy":

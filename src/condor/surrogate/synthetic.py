@@ -9,7 +9,7 @@ import numpy as np
 import xarray as xr
 
 from .baselines import gaussian_blur
-from .data import CHANNEL_NAMES, FIELD_NAMES
+from .samples import CHANNEL_NAMES, FIELD_NAMES
 
 # Per field: weight of blurred occupancy, of blurred tethers, of occupancy * x/size.
 _MIX = np.array([[0.8, 0.4, 0.0], [0.1, 2.0, 0.0], [0.2, -0.3, 0.5], [0.5, -0.1, -0.4],
@@ -43,7 +43,7 @@ def synthetic_dataset(n: int = 8, size: int = 32, seed: int = 0,
                       gaussian_blur(occ * x, sigma_px)], axis=1)  # (n, 3, H, W)
     fields = np.einsum("fk,skyx->sfyx", _MIX, basis).astype(np.float32)
     split = np.array([splits[i % len(splits)] for i in range(n)])
-    # a stand-in for the lattice channels (condor.inputs): the masks at the kernel's blur
+    # a stand-in for the lattice channels (condor.data.inputs): the masks at the kernel's blur
     lattice = np.stack([gaussian_blur(masks[:, c].astype(float), sigma_px) for c in range(2)],
                        axis=1).astype(np.float32)
     return xr.Dataset(

@@ -25,9 +25,9 @@ import torch
 from .checkpoint import (CheckpointMismatchError, discriminator_from_checkpoint,
                          generator_from_checkpoint, load_checkpoint, save_checkpoint,
                          scaling_from_checkpoint)
-from condor.inputs import INPUT_KINDS
+from condor.data.inputs import INPUT_KINDS
 
-from .data import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
+from .samples import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, SampleSource,
                    apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
                    dataset_pixel_size, INPUT_VARIABLES, model_inputs, n_input_channels,
                    usable_samples)
@@ -55,8 +55,11 @@ RESUMABLE_KEYS = {"num_threads"}
 
 @dataclass
 class TrainConfig:
-    """Training settings; defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4, betas
-    0.5/0.999, batch 1, 10 epochs).
+    """Training settings; the field defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4,
+    betas 0.5/0.999, batch 1, 10 epochs): the baseline every preset of
+    condor.surrogate.variants.PRESETS names its changes against, and what a checkpoint written
+    before a setting existed is read with (`_check_resumable`). The default model is the
+    preset `unet` (`variants.resolve("unet")`, what `condor train` trains by default).
 
     model: "pix2pix" (paper generator and discriminator at 256 px; data resampled to 256),
     "unet_gan" (U-Net `unet` + PatchGAN `patch`, same losses) or "unet_l1" (U-Net, L1 only).
@@ -89,7 +92,7 @@ class TrainConfig:
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
     lr_schedule: "constant" or "cosine" (LR_SCHEDULES; `lr_at`): a pure function of the
     epoch, so a resumed run follows the same schedule.
-    inputs: what the network reads of a mould (condor.inputs.INPUT_KINDS): "mask" (the
+    inputs: what the network reads of a mould (condor.data.inputs.INPUT_KINDS): "mask" (the
     paper's two 0/1 masks, the store's `inputs`), "lattice" (its initial cells rasterised,
     the store's `lattice`) or "both" (the four channels).
     """

@@ -1,7 +1,7 @@
 """Dataset access for the surrogate: usable samples, [-1, 1] scaling, resampling.
 
 The dataset is an xarray.Dataset with `inputs` (sample, channel, y, x) 0/1, `lattice`
-(sample, cell, y, x; condor.inputs), `fields`
+(sample, cell, y, x; condor.data.inputs), `fields`
 (sample, field, y, x) float32, `split` and `status` per sample (see docs/surrogate.md).
 Samples are read one at a time (one zarr chunk per sample) unless the selection is small
 enough to hold in memory.
@@ -15,14 +15,14 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from condor.dataset import usable_samples  # noqa: F401  (the one home; re-exported here)
-from condor.fields import FIELD_NAMES
-from condor.inputs import stress_channels
-from condor.store import CHANNELS as CHANNEL_NAMES
-from condor.store import SPLITS  # noqa: F401
+from condor.data.reader import usable_samples  # noqa: F401  (the one home; re-exported here)
+from condor.data.fields import FIELD_NAMES
+from condor.data.inputs import stress_channels
+from condor.data.store import CHANNELS as CHANNEL_NAMES
+from condor.data.store import SPLITS  # noqa: F401
 
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
-# What a model reads (TrainConfig.inputs, condor.inputs): the store variables of each kind,
+# What a model reads (TrainConfig.inputs, condor.data.inputs): the store variables of each kind,
 # two channels each, in this order.
 INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice"),
                    "mechanics": ("inputs", "lattice", "stress"),
@@ -78,7 +78,7 @@ def dataset_pixel_size(ds) -> float:
     if isinstance(scene, dict) and "box" in scene:
         return float(scene["box"]) / int(ds.sizes["x"])
     if isinstance(scene, str):
-        from condor.scenes import get_scene
+        from condor.model.scenes import get_scene
         return get_scene(scene).box / int(ds.sizes["x"])
     raise ValueError(f"cannot tell the pixel size: dataset attributes {sorted(ds.attrs)} have no "
                      "'pixel_size' or 'scene'; pass pixel_size=")

@@ -4,7 +4,7 @@
 isotropic random orientations, runs a solver and checks the result. Solvers and the meaning
 and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
 
-  * "lbfgs" (the default, DEFAULT_SOLVER): L-BFGS with exact walls (`condor.lbfgs`) from the
+  * "lbfgs" (the default, DEFAULT_SOLVER): L-BFGS with exact walls (`condor.model.lbfgs`) from the
                 lattice (the quench); budget = energy+gradient evaluations; ftol = largest
                 residual force.
   * "anneal":   the paper's Metropolis annealing; budget = moves per mobile cell
@@ -13,7 +13,7 @@ and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
                 energy+gradient evaluations.
   * "hybrid":   a short anneal (budget = its moves per cell) that lets orientations find
                 better domains, then FIRE to convergence (MAX_ITER evaluations at most).
-  * "relaxed_anneal": `condor.anneal.relaxed_anneal` over
+  * "relaxed_anneal": `condor.model.anneal.relaxed_anneal` over
                 the temperatures where the orientation order forms (RELAXED_WINDOW), its
                 positions relaxed by L-BFGS after every RELAXED_SWEEPS sweeps (RELAXED_RELAX
                 evaluations), then L-BFGS to ftol; budget = its moves per cell. It samples the
@@ -21,7 +21,7 @@ and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
                 which the 30-minute default run cannot carry yet (docs/model.md, "The paper's
                 CONDOR, and a fast sampler of it").
 
-`simulate_lattice` runs a solver from a given start state (used by condor.stability and
+`simulate_lattice` runs a solver from a given start state (used by condor.studies.stability and
 condor.studies).
 
 Cost in machine-independent units: info["evaluations"] counts energy+gradient
@@ -29,7 +29,7 @@ evaluation-equivalents of the whole solve. A minimiser's evaluation is one; an a
 the bond energies its trials evaluated over the bonds of one evaluation
 (`anneal_evaluations`; measured: a Metropolis trial costs about what its bonds cost in an
 evaluation, docs/model.md). info["max_force"] is the largest residual force of the final state
-(`condor.walls.residual_forces`: projected on walls and posts, tangent for orientations,
+(`condor.model.walls.residual_forces`: projected on walls and posts, tangent for orientations,
 kappa0 l0), whatever the solver.
 
 It raises ValueError for bad input only (including a non-finite start state or bonded cells
@@ -54,12 +54,12 @@ from pathlib import Path
 
 import numpy as np
 
-from condor import anneal as anneal_mod
-from condor import lbfgs as lbfgs_mod
-from condor import minimise as minimise_mod
-from condor.energy import DELTA, cell_tension, lattice_energy, random_orientations
-from condor.lattice import Lattice, build_lattice, signed_volumes
-from condor.walls import residual_forces
+from condor.model import anneal as anneal_mod
+from condor.model import lbfgs as lbfgs_mod
+from condor.model import minimise as minimise_mod
+from condor.model.energy import DELTA, cell_tension, lattice_energy, random_orientations
+from condor.model.lattice import Lattice, build_lattice, signed_volumes
+from condor.model.walls import residual_forces
 
 SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid", "relaxed_anneal")
 DEFAULT_SOLVER = "lbfgs"
@@ -176,9 +176,9 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | No
     """Run a solver on `lattice` from a given start state (positions, orientations (N, 3)).
 
     `simulate` starts from the lattice with random orientations; this entry point serves
-    studies that start elsewhere (a folded or NaN state in `condor.stability`). The start
+    studies that start elsewhere (a folded or NaN state in `condor.studies.stability`). The start
     energy (for the runaway check) is that of the given state.
-    checkpoint, log: the anneal's (solvers "anneal" and "hybrid"; `condor.anneal.anneal`): a
+    checkpoint, log: the anneal's (solvers "anneal" and "hybrid"; `condor.model.anneal.anneal`): a
     long anneal saves its state there and resumes from it. `seconds` is then the anneal's
     process time over every resumption plus this call's minimiser.
     """

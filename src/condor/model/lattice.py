@@ -26,7 +26,7 @@ the polygon's, sampled on a grid of spacing `PHI_SPACING` and read by bilinear i
 (exact for straight walls away from corners), and each post's, |(x, y) - centre| - radius,
 computed exactly (a sampled circle would be faceted, and a cell pressed on a facet edge could
 never balance its force). The Metropolis kernel rejects a move outside; the minimisers treat
-the region as a hard constraint (`condor.walls`) or a stiff wall (FIRE).
+the region as a hard constraint (`condor.model.walls`) or a stiff wall (FIRE).
 """
 
 from __future__ import annotations

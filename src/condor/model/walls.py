@@ -1,7 +1,7 @@
 """The allowed region as a hard constraint: walls a cell touches, projected forces, projection.
 
 A mobile cell must satisfy, in the plane, phi(x, y) >= 0 (the polygon's bilinear signed
-distance, `condor.lattice`) and |(x, y) - c_k| >= r_k for every post k (exact circles), and
+distance, `condor.model.lattice`) and |(x, y) - c_k| >= r_k for every post k (exact circles), and
 0 <= z <= depth. Each is one constraint; a cell is *on* a constraint when its value is at most
 ON_WALL (l0). Projection lands a cell within [0, LAND] of the wall it crossed.
 
@@ -28,8 +28,8 @@ import math
 import numba
 import numpy as np
 
-from condor.energy import DELTA, energy_gradient
-from condor.lattice import phi_grad_at, region_distance
+from condor.model.energy import DELTA, energy_gradient
+from condor.model.lattice import phi_grad_at, region_distance
 
 ON_WALL = 1.0e-9  # l0: a cell this close to a wall touches it
 # A bound on |grad| of the plane distance: 1 for a post, sqrt 2 for the bilinear interpolant

@@ -23,9 +23,9 @@ import numpy as np
 import pandas as pd
 from shapely.geometry import Polygon, box
 
-from condor.energy import random_orientations
-from condor.lattice import build_lattice
-from condor.simulate import SOLVERS, simulate_lattice
+from condor.model.energy import random_orientations
+from condor.model.lattice import build_lattice
+from condor.model.simulate import SOLVERS, simulate_lattice
 
 DEPTH = 2.0  # l0: 3 layers, a few hundred cells per case
 SQUARE = box(0, 0, 8, 6)

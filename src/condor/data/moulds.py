@@ -31,7 +31,7 @@ import shapely
 from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, mapping, shape
 
-from condor.lattice import HALF
+from condor.model.lattice import HALF
 
 SYMMETRIES: tuple[str, ...] = (
     "random_rotation",
@@ -679,7 +679,7 @@ def validate_mould(mould: Mould, rtol: float = 1e-6) -> None:
     as the generator makes it. A user mould has no area rule (an area_fraction it states
     must match its polygon, to `rtol`) and is checked by geometry instead: every part is at
     least MIN_WIDTH_L0 (one cell) wide where it joins the rest, and the tether posts leave
-    room for mobile cells, so that condor.simulate.simulate accepts it (docs/user_moulds.md).
+    room for mobile cells, so that condor.model.simulate.simulate accepts it (docs/user_moulds.md).
     """
     name = f"mould {mould.mould_id}" if mould.is_generated or mould.mould_id else "the mould"
     polygon, box = mould.polygon, float(mould.box)
@@ -766,7 +766,7 @@ def _check_room(name: str, polygon: Polygon, tethers: np.ndarray) -> None:
         raise InvalidMouldError(f"{name}: a neck narrower than a cell ({MIN_WIDTH_L0:g} l0) "
                                 f"splits the polygon into {len(parts)} parts")
     if len(tethers):
-        # posts fix every site within max(radius, HALF) of a tether centre (condor.lattice)
+        # posts fix every site within max(radius, HALF) of a tether centre (condor.model.lattice)
         posts = shapely.buffer(shapely.points(tethers[:, :2]),
                                np.maximum(tethers[:, 2], HALF) + half_cell, quad_segs=64)
         if core.difference(shapely.union_all(posts)).is_empty:

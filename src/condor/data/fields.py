@@ -24,7 +24,7 @@ import numba
 import numpy as np
 import pandas as pd
 
-from condor.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
+from condor.model.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
 
 FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
 

@@ -7,10 +7,10 @@ it, feed it to PyTorch, and read its card.
     stats = condor.dataset.field_statistics(ds)          # per-field mean/std/min/max (train)
     loader = torch.utils.data.DataLoader(condor.dataset.torch_dataset(ds, "train"), batch_size=8)
 
-Layout (DESIGN.md "The dataset contract", condor.store): `inputs` (sample, channel, y, x) 0/1
+Layout (DESIGN.md "The dataset contract", condor.data.store): `inputs` (sample, channel, y, x) 0/1
 with channels mould, tether; `lattice` (sample, cell, y, x) float32, the mould's initial mobile
 and fixed cells rasterised with the fields' kernel in units of a full FCC column
-(condor.inputs: what the default surrogate reads); `fields` (sample, field, y, x) float32, the 8 un-normalised fields
+(condor.data.inputs: what the default surrogate reads); `fields` (sample, field, y, x) float32, the 8 un-normalised fields
 P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz; per-sample metadata; for moulds simulated with several
 seeds, `fields_mean` and `fields_std` (replicated, field, y, x). A `README.md` dataset card
 (`write_card`) sits beside the store.
@@ -26,9 +26,9 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 
-from condor import __version__
-from condor.fields import FIELD_NAMES
-from condor.store import SPLITS, check_store, open_store
+from condor.version import __version__
+from condor.data.fields import FIELD_NAMES
+from condor.data.store import SPLITS, check_store, open_store
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
 ITEM_SHAPES = "inputs (2, H, W) float32 0/1; fields (8, H, W) float32"

@@ -24,8 +24,8 @@ import math
 import numba
 import numpy as np
 
-from condor.energy import DELTA, energy_gradient
-from condor.lattice import region_distance_grad
+from condor.model.energy import DELTA, energy_gradient
+from condor.model.lattice import region_distance_grad
 
 K_WALL = 50.0  # kappa0, wall stiffness
 FTOL = 1.0e-3  # kappa0 l0, default force tolerance (energy within ~0.01% of the minimum)

@@ -52,9 +52,9 @@ import xarray as xr
 import zarr
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
-from condor import __version__
-from condor.fields import FIELD_NAMES
-from condor.inputs import LATTICE_CHANNELS
+from condor.version import __version__
+from condor.data.fields import FIELD_NAMES
+from condor.data.inputs import LATTICE_CHANNELS
 
 FORMAT = "condor-dataset"
 FORMAT_VERSION = 3  # 3: the lattice channels (`lattice`) beside the masks
@@ -370,7 +370,7 @@ def replica_samples(path: str | Path, mould: int) -> list[int]:
 
 def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: dict,
                  lattice: np.ndarray) -> None:
-    """Write one mould's input channels (masks), lattice channels (condor.inputs) and metadata
+    """Write one mould's input channels (masks), lattice channels (condor.data.inputs) and metadata
     into every replica, then mark them ready."""
     group = open_group(path, mode="r+")
     pixels = group.attrs["pixels"]

@@ -1,12 +1,12 @@
 """What the surrogate sees of a mould: the mask channels, or the lattice channels.
 
-The paper's inputs are two 0/1 masks (`condor.moulds.input_channels`: mould, tether), each
+The paper's inputs are two 0/1 masks (`condor.data.moulds.input_channels`: mould, tether), each
 pixel judged at its centre. They hide what sets the tension: a post is a few whole pixels at
 64 px (tether radii 1.3-4 px), and a tether narrower than a/2 anchors the posts picked within
-a/2 (`condor.lattice`), so the number of fixed cells it holds is not in the picture at all.
+a/2 (`condor.model.lattice`), so the number of fixed cells it holds is not in the picture at all.
 The *lattice channels* are the simulation's own starting point instead: the initial cells of
-`condor.lattice.build_lattice` (mobile, fixed) rasterised with the fields' kernel
-(`condor.fields.rasterise`), per pixel in units of a full FCC column (`column_cells`), so the
+`condor.model.lattice.build_lattice` (mobile, fixed) rasterised with the fields' kernel
+(`condor.data.fields.rasterise`), per pixel in units of a full FCC column (`column_cells`), so the
 inside of a mould reads ~1 whatever the scene. They place the outline and every post to a
 fraction of a pixel, and their sum times the column unit is N_c. Measured in
 docs/surrogate.md ("The inputs"): the tension field's error falls by a third.
@@ -45,7 +45,7 @@ SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
 def column_cells(depth: float, pixel_size: float) -> float:
     """Cells per pixel of a full FCC column of `depth` (the lattice channels' unit): the
     projected site density n_layers / 2 per HALF^2, times the pixel area."""
-    from condor.lattice import HALF, fcc_layers
+    from condor.model.lattice import HALF, fcc_layers
 
     return 0.5 * fcc_layers(depth) * (pixel_size / HALF) ** 2
 
@@ -54,7 +54,7 @@ def rasterise_cells(xy: np.ndarray, weights: np.ndarray, depth: float, box: floa
                     pixels: int, sigma: float) -> np.ndarray:
     """Cells at `xy` (N, 2) with per-channel weights (N, 2) -> lattice channels (2, P, P)
     float32 in column units."""
-    from condor.fields import rasterise
+    from condor.data.fields import rasterise
 
     image = rasterise(np.asarray(xy, np.float64), np.asarray(weights, np.float64), box, pixels,
                       sigma)
@@ -64,21 +64,21 @@ def rasterise_cells(xy: np.ndarray, weights: np.ndarray, depth: float, box: floa
 def lattice_channels(polygon, tethers, depth: float, box: float, pixels: int,
                      sigma: float) -> np.ndarray:
     """(2, pixels, pixels) float32 [channel, y, x]: the mould's initial mobile and fixed cells
-    (condor.lattice.lattice_sites) rasterised like the fields, in column units."""
-    from condor.lattice import lattice_sites
+    (condor.model.lattice.lattice_sites) rasterised like the fields, in column units."""
+    from condor.model.lattice import lattice_sites
 
     return channels_of_sites(*lattice_sites(polygon, tethers, depth), depth, box, pixels, sigma)
 
 
 def channels_of_sites(positions: np.ndarray, fixed: np.ndarray, depth: float, box: float,
                       pixels: int, sigma: float) -> np.ndarray:
-    """The lattice channels of cells already placed (condor.lattice.lattice_sites)."""
+    """The lattice channels of cells already placed (condor.model.lattice.lattice_sites)."""
     weights = np.stack([~fixed, fixed], axis=1).astype(np.float64)
     return rasterise_cells(positions[:, :2], weights, depth, box, pixels, sigma)
 
 
 def of_mould(mould, scene) -> np.ndarray:
-    """The lattice channels of a `condor.moulds.Mould` on `scene`'s grid."""
+    """The lattice channels of a `condor.data.moulds.Mould` on `scene`'s grid."""
     return lattice_channels(mould.polygon, mould.tethers, scene.depth, scene.box, scene.pixels,
                             scene.sigma)
 
@@ -87,8 +87,8 @@ def mask_sites(masks: np.ndarray, pixel_size: float, depth: float):
     """FCC site columns over the occupied pixels of masks (2, H, W) (mould, tether): xy (K, 2)
     of the columns whose (x, y) falls in an occupied pixel, their cell count (K,) and whether
     the pixel is a tether's (K,). The origin is the centre of the occupied pixels' bounding
-    box (condor.lattice puts it at the polygon's)."""
-    from condor.lattice import HALF, fcc_layers
+    box (condor.model.lattice puts it at the polygon's)."""
+    from condor.model.lattice import HALF, fcc_layers
 
     occupied = masks.astype(bool).any(axis=0)  # [y, x]
     if not occupied.any():

@@ -3,7 +3,7 @@ training domain, and write it back as a drawing (SVG, DXF) with dimensions.
 
 `load_mould(path, scene, l0_um=None, fit=False, units=None)` accepts
 
-- the generator's mould JSON (`condor.moulds.save_json`; validated as before);
+- the generator's mould JSON (`condor.data.moulds.save_json`; validated as before);
 - a minimal JSON: {"outline": [[x, y], ...], "holes": [[[x, y], ...], ...],
   "tethers": [[x, y, r], ...], "units": "l0" | "mm" | "um"} (holes and tethers optional);
 - an SVG drawing (read with svgelements) or a DXF drawing (read with ezdxf): exactly one
@@ -38,8 +38,8 @@ from shapely import affinity
 from shapely.geometry import Polygon
 from shapely.geometry.polygon import orient
 
-from condor.moulds import InvalidMouldError, Mould, load_json, validate_mould
-from condor.scenes import Scene
+from condor.data.moulds import InvalidMouldError, Mould, load_json, validate_mould
+from condor.model.scenes import Scene, same_length
 
 UNITS = ("l0", "mm", "um")  # units a drawing may be in (um is read as mm / 1000)
 FLATTEN_TOLERANCE_L0 = 0.01  # curves become chords with sagitta at most this (l0)
@@ -206,7 +206,7 @@ def training_domain_check(mould: Mould, scene: Scene) -> list[str]:
     grid, get warnings. Simulation needs no such check: the model holds for any mould.
     """
     box = float(scene.box)
-    if not math.isclose(mould.box, box, rel_tol=1e-9):
+    if not same_length(mould.box, box):
         raise OutsideTrainingDomainError(
             f"the mould is placed in a {mould.box:g} l0 box, the {scene.name!r} scene (and a "
             f"surrogate trained on it) has {box:g} l0")
@@ -243,7 +243,7 @@ def training_domain_check(mould: Mould, scene: Scene) -> list[str]:
 
 
 def _tethers_without_pixels(tethers: np.ndarray, box: float, pixels: int) -> list[int]:
-    """Tethers whose disk holds no pixel centre (the rule of condor.moulds.input_channels)."""
+    """Tethers whose disk holds no pixel centre (the rule of condor.data.moulds.input_channels)."""
     size = box / pixels
     hidden = []
     for i, (x, y, r) in enumerate(tethers):
@@ -316,7 +316,7 @@ def _mould_json(path: Path, scene: Scene, fit: bool, units: str | None) -> Mould
         raise DrawingError(f"{path} is a mould file, always in l0; units = {units!r} "
                            "contradicts it")
     mould = load_json(path)
-    if not math.isclose(mould.box, scene.box, rel_tol=1e-9):
+    if not same_length(mould.box, scene.box):
         raise InvalidMouldError(
             f"{path} is a mould for a {mould.box:g} l0 box, the {scene.name!r} scene has "
             f"{scene.box:g} l0: pass the matching scene, or give its outline and tethers "

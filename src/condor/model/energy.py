@@ -154,7 +154,7 @@ def random_orientations(n: int, rng: np.random.Generator) -> np.ndarray:
 
 
 def lattice_energy(lattice, positions, orientations, delta: float = DELTA) -> float:
-    """Convenience: total_energy over the bonds of a `condor.lattice.Lattice`."""
+    """Convenience: total_energy over the bonds of a `condor.model.lattice.Lattice`."""
     return total_energy(
         np.ascontiguousarray(positions, dtype=np.float64),
         np.ascontiguousarray(orientations, dtype=np.float64),

@@ -6,11 +6,21 @@ fixed in l0 (3 px at the paper's 256 px over 62.5 l0), so it is the same at ever
 
 from __future__ import annotations
 
+import math
 from dataclasses import asdict, dataclass, replace
 
 PAPER_BOX = 62.5
 PAPER_PIXELS = 256
 SIGMA_L0 = 3.0 * PAPER_BOX / PAPER_PIXELS  # 0.732421875 l0
+# Two box sides or pixel sizes (l0) closer than this, relative, are the same grid's: what a
+# checkpoint, a result or a mould records (float products of what a scene states) against a
+# scene. The one home of the same-grid check.
+GRID_RTOL = 1e-9
+
+
+def same_length(a: float, b: float) -> bool:
+    """Whether two box sides or pixel sizes (l0) are the same grid's (GRID_RTOL)."""
+    return math.isclose(float(a), float(b), rel_tol=GRID_RTOL)
 
 
 @dataclass(frozen=True)

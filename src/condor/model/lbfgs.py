@@ -3,9 +3,9 @@
 Variables: the position r and the unit orientation s of every mobile cell (6 numbers a cell).
 The gradient is dE/dr and the tangent part of dE/ds (the sphere's tangent space); a step moves
 r and s along the search direction, then puts s back on the sphere (normalisation, the
-retraction) and r back into the allowed region (`condor.walls.place`).
+retraction) and r back into the allowed region (`condor.model.walls.place`).
 
-Walls are an active set (`condor.walls`): a cell on a wall whose force pushes outward has the
+Walls are an active set (`condor.model.walls`): a cell on a wall whose force pushes outward has the
 outward part of its gradient removed, and the search direction of such a cell is restricted to
 slide along that wall (or held in a corner, or in z on the floor or lid), so the state always
 satisfies the walls, posts and slab exactly and converges to a balance that includes them.
@@ -34,9 +34,9 @@ import math
 import numba
 import numpy as np
 
-from condor.energy import DELTA, energy_gradient
-from condor.lattice import region_distance
-from condor.walls import (LIPSCHITZ, ON_WALL, SLIDE, hold_on_walls, place, project_force,
+from condor.model.energy import DELTA, energy_gradient
+from condor.model.lattice import region_distance
+from condor.model.walls import (LIPSCHITZ, ON_WALL, SLIDE, hold_on_walls, place, project_force,
                           project_state)
 
 FTOL = 3.0e-4  # kappa0 l0, default largest residual force (see docs/model.md)

@@ -42,8 +42,8 @@ from pathlib import Path
 import numba
 import numpy as np
 
-from condor.energy import DELTA, bond_energies, rest_length
-from condor.lattice import region_distance
+from condor.model.energy import DELTA, bond_energies, rest_length
+from condor.model.lattice import region_distance
 
 T_INIT = 0.0625  # kappa0 l0^2 (paper)
 T_RATIO = 1.0e7  # T_init / T_final (paper)
@@ -462,7 +462,7 @@ def relaxed_anneal(lattice, positions, orientations, seed_seq, t_hi: float, t_lo
     the relaxation carries the long-wavelength elastic modes that single-cell moves relax
     only over ~L^2 sweeps. Returns (positions, orientations, info) with info["anneal_*"] as
     `anneal` and relax_evaluations spent."""
-    from condor.lbfgs import minimise_lbfgs  # the minimiser's floor is beside this one
+    from condor.model.lbfgs import minimise_lbfgs  # the minimiser's floor is beside this one
 
     run = AnnealRun(lattice, positions, orientations, segments * sweeps, seed_seq, t_hi,
                     t_hi / t_lo, delta)

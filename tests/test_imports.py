@@ -1,0 +1,131 @@
+"""The import graph of src/condor against the floors of docs/architecture.md: every module is
+on a floor, the floors below the top are folders, no import (at module level or inside a
+function) climbs a floor, and no modules import each other in a circle."""
+
+import ast
+import re
+from pathlib import Path
+
+REPO = Path(__file__).resolve().parents[1]
+SRC = REPO / "src" / "condor"
+ARCHITECTURE = REPO / "docs" / "architecture.md"
+
+
+def floors() -> list[tuple[str, list[str]]]:
+    """The table of docs/architecture.md's "The floors": [(floor, [module names under
+    condor, a package's name for all of it])], bottom up."""
+    text = ARCHITECTURE.read_text().split("## The floors", 1)[1].split("\n## ", 1)[0]
+    table: list[tuple[str, list[str]]] = []
+    for line in text.splitlines():
+        cells = [c.strip() for c in line.strip().strip("|").split("|")]
+        if len(cells) < 3 or cells[0] == "floor" or cells[1].startswith("---"):
+            continue
+        names = re.findall(r"`([\w.]+)`", cells[1])
+        if cells[0]:
+            table.append((cells[0], []))
+        table[-1][1].extend(names)
+    return table
+
+
+def modules() -> dict[str, Path]:
+    """Every module of the package by dotted name under condor ('model.simulate'; a
+    package's __init__ by the package's name)."""
+    found = {}
+    for path in SRC.rglob("*.py"):
+        parts = path.relative_to(SRC).with_suffix("").parts
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        found[".".join(parts) or "condor"] = path  # "condor": the package itself, the top
+    return found
+
+
+def imports(name: str, path: Path, known: set[str]) -> set[str]:
+    """The condor modules `name` imports, anywhere in it."""
+    package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            targets = [a.name for a in node.names]
+        elif isinstance(node, ast.ImportFrom):
+            if node.level:
+                base = package[:len(package) - node.level + 1]
+                stem = ".".join(["condor", *base, *([node.module] if node.module else [])])
+            else:
+                stem = node.module or ""
+            targets = [f"{stem}.{a.name}" for a in node.names] + [stem]
+        else:
+            continue
+        for target in targets:
+            if target != "condor" and not target.startswith("condor."):
+                continue
+            target = target[len("condor."):]
+            while target and target not in known:  # `from m import function`: the module m
+                target = target.rpartition(".")[0]
+            target = target or "condor"
+            if target != name:
+                out.add(target)
+    return out
+
+
+def graph() -> dict[str, set[str]]:
+    found = modules()
+    return {name: imports(name, path, set(found)) for name, path in found.items()}
+
+
+def floor_of(name: str, table) -> int:
+    if name == "condor":  # the package's own __init__ (condor.open_dataset): the top floor
+        return len(table) - 1
+    best = None
+    for level, (floor, names) in enumerate(table):
+        if name == floor:  # a floor's folder: its package
+            return level
+        for entry in names:
+            if name == entry or name.startswith(entry + "."):
+                if best is None or len(entry) > best[1]:
+                    best = (level, len(entry))
+    assert best is not None, f"condor.{name} is on no floor of docs/architecture.md"
+    return best[0]
+
+
+def test_every_module_is_on_a_floor_and_the_floors_are_folders():
+    table = floors()
+    assert [floor for floor, _ in table][:1] == ["base"] and table[-1][0] == "top"
+    for name in modules():
+        floor = table[floor_of(name, table)][0]
+        if floor not in ("base", "top"):
+            assert name.split(".")[0] == floor, f"condor.{name} is on floor {floor!r}"
+        else:
+            assert "." not in name or name.split(".")[0] == "stages", name
+
+
+def label(name: str, table=None) -> str:
+    full = name if name == "condor" else f"condor.{name}"
+    return full if table is None else f"{full} ({table[floor_of(name, table)][0]})"
+
+
+def test_no_import_climbs_a_floor():
+    table = floors()
+    climbs = [f"{label(a, table)} imports {label(b, table)}"
+              for a, targets in graph().items() for b in targets
+              if floor_of(b, table) > floor_of(a, table)]
+    assert not climbs, "\n".join(climbs)
+
+
+def test_no_circular_imports():
+    edges = graph()
+    state: dict[str, int] = {}
+    circles = []
+
+    def visit(node, stack):
+        state[node] = 1
+        for nxt in sorted(edges[node]):
+            if state.get(nxt) == 1:
+                circles.append(" -> ".join(map(label, stack[stack.index(nxt):] + [nxt])))
+            elif nxt not in state:
+                visit(nxt, stack + [nxt])
+        state[node] = 2
+
+    for node in sorted(edges):
+        if node not in state:
+            visit(node, [node])
+    assert not circles, "\n".join(circles)
