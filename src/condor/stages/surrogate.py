@@ -146,8 +146,8 @@ def summarise(summary_csvs, out_csv) -> pd.DataFrame:
 
 
 def learning_curves_figure(tables: dict, out_png) -> Path:
-    """The learning curves measured by benchmarks/bench_surrogate_curves.py (the committed
-    tables docs/data/surrogate_curve_<name>.csv, `tables`: name or "<name>_curve" -> path, the
+    """The learning curves measured by experiments/surrogate/curves.py (the committed
+    tables experiments/surrogate/surrogate_curve_<name>.csv, `tables`: name or "<name>_curve" -> path, the
     workflow's input names) drawn for the report."""
     return learning_curves({name.removesuffix("_curve"): pd.read_csv(path)
                             for name, path in tables.items()}, out_png)

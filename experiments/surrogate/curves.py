@@ -1,17 +1,17 @@
 """Learning curves of the surrogate against the expected fields: test error against the number
 of training moulds, the model size and the epochs; writes the small tables docs/surrogate.md
-shows (docs/data/surrogate_curve_*.csv) from the rows of bench_surrogate_study.py.
+shows (experiments/surrogate/surrogate_curve_*.csv) from the rows of experiments/surrogate/study.py.
 
-    # the runs (each appends to DIR/results.csv; see --help of bench_surrogate_study.py)
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run data --out DIR \\
+    # the runs (each appends to DIR/results.csv; see --help of experiments/surrogate/study.py)
+    PYTHONPATH=src python experiments/surrogate/curves.py run data --out DIR \\
         --store BIG_STORE --val-store DEFAULT_STORE --replicas REPLICAS.npz
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run size --out DIR ...
+    PYTHONPATH=src python experiments/surrogate/curves.py run size --out DIR ...
     # the three curves from three kinds of run: the data curve's default-sized run also gives
     # the epoch curve (--epochs-at) and the size curve's base-32 point (--n-train 194)
     ... run data --sizes 194 --epochs-at 30 60 120 180 --store BIG_STORE --val-store ...
     ... run size --bases 16 48 --n-train 194 --store BIG_STORE --val-store ...
     # the tables
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py tables --out DIR --docs docs/data
+    PYTHONPATH=src python experiments/surrogate/curves.py tables --out DIR [--docs experiments/surrogate]
 
 Curves share the default's settings (config/config.yaml, variant `unet`) and change one thing:
 - data: the first n training moulds of BIG_STORE (built by the workflow with
@@ -39,7 +39,7 @@ import pandas as pd
 
 from condor.config import Config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
 COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms", "field_rms_lo",
            "field_rms_hi", "ceiling_rms", "error_over_ceiling", "error_over_ceiling_lo",
@@ -50,12 +50,12 @@ COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms"
 
 
 def default_settings(variant: str = "unet") -> dict:
-    # to_dict: plain (JSON-safe) values, as bench_surrogate_study.py --settings takes them
+    # to_dict: plain (JSON-safe) values, as experiments/surrogate/study.py --settings takes them
     return Config.load(REPO / "config" / "config.yaml").to_dict()["surrogate"]["models"][variant]
 
 
 def study(name, settings, args, store, extra=()):
-    cmd = [sys.executable, str(REPO / "benchmarks" / "bench_surrogate_study.py"), name,
+    cmd = [sys.executable, str(Path(__file__).resolve().with_name("study.py")), name,
            "--settings", json.dumps(settings), "--store", store, "--replicas", args.replicas,
            "--out", args.out, "--threads", str(args.threads), *extra]
     if args.val_store:
@@ -127,7 +127,7 @@ def main() -> None:
                    help="size curve: train on the first N training moulds of --store")
     t = sub.add_parser("tables")
     t.add_argument("--out", required=True)
-    t.add_argument("--docs", default=str(REPO / "docs" / "data"))
+    t.add_argument("--docs", default=str(Path(__file__).resolve().parent))
     args = ap.parse_args()
     run(args) if args.command == "run" else tables(args)
 
