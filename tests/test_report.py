@@ -384,3 +384,23 @@ def test_dataset_line_names_the_tether_free_test_moulds_replicas():
     assert "test 8." in plain and "tether-free" not in plain and "1 failed" in plain
     config = Config.default(simulation={"replicas": {"test": 4, "test_tether_free": 20}})
     assert "test 4 (tether-free test moulds 20)." in report._dataset_line(config, summary)
+
+
+def test_headline_without_a_spread_map_or_a_reference_says_so():
+    every = accuracy_table(surrogate=(0.2, 0.18, 0.22)).assign(n_moulds=24)
+    stats = statistics_table(n=24, bias=-0.02)
+    numbers, words = report.headline(every, stats, pd.DataFrame(columns=["method", "n_moulds"]),
+                                     fidelity_table().iloc[:0], "unet")
+    assert list(numbers["question"]) == [
+        "Error against the expected fields", "Time a mould", "Calibration of the spread map",
+        "Largest bias (whole-mould statistic)", "Distance to the paper's CONDOR"]
+    answers = dict(zip(numbers["question"], numbers["answer"]))
+    assert answers["Calibration of the spread map"] == "unet predicts no spread"
+    assert answers["Distance to the paper's CONDOR"].startswith("not measured")
+    assert "mean P -2.0% [-2.1, -1.9]" in answers["Largest bias (whole-mould statistic)"]
+    assert words.startswith("Verdict: unet lands farther from the expected organisation than "
+                            "one simulation on all 24 test moulds")
+    assert "not resolved" not in words and "paper's CONDOR" not in words
+    with pytest.raises(report.ReportError, match="no row"):
+        report.headline(every[every["method"] != "single simulation"], stats,
+                        pd.DataFrame(), fidelity_table(), "unet")

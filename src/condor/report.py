@@ -479,8 +479,10 @@ def _summary_section(config, inp) -> Section:
     blocks = []
     if first is not None:
         every = _csv(inp, "statistics_test")
-        numbers, words = headline(_csv(inp, "accuracy_test"), every,
-                                  _csv(inp, "calibration_test"), _csv(inp, "fidelity"), first)
+        calibration = (_csv(inp, "calibration_test") if Path(inp["calibration_test"]).stat()
+                       .st_size > 1 else pd.DataFrame())  # empty: no surrogate with a spread
+        numbers, words = headline(_csv(inp, "accuracy_test"), every, calibration,
+                                  _csv(inp, "fidelity"), first)
         blocks += [_headline_table(numbers), verdict(words)]
     blocks += [paragraph(_dataset_line(config, summary)), *_failures(summary)]
     if first is not None:
