@@ -319,25 +319,20 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert report.screenshot_coverage(report.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
 
 
-def test_learning_curves_figure_draws_each_table_and_refuses_none(tmp_path):
-    from condor.stages.surrogate import learning_curves_figure
-
+def test_learning_curves_draws_each_table_and_refuses_none(tmp_path):
+    # drawn by experiments/surrogate/curves.py from its tables
     data = pd.DataFrame({"n_train": [50, 100, 200], "epochs": [40, 20, 10],
                          "field_rms": [0.4, 0.3, 0.25], "field_rms_lo": [0.35, 0.25, 0.2],
                          "field_rms_hi": [0.45, 0.35, 0.3], "ceiling_rms": [0.5] * 3})
-    data.to_csv(tmp_path / "data.csv", index=False)
     epochs = data.assign(epochs=[10, 20, 40]).drop(columns="n_train")
-    epochs.to_csv(tmp_path / "epochs.csv", index=False)
-    out = learning_curves_figure({"data": tmp_path / "data.csv", "epochs": tmp_path / "epochs.csv"},
-                                 tmp_path / "curves.png")
+    out = plots.learning_curves({"data": data, "epochs": epochs}, tmp_path / "curves.png")
     from PIL import Image
 
     wide = Image.open(out).size
-    one = Image.open(learning_curves_figure({"data": tmp_path / "data.csv"},
-                                            tmp_path / "one.png")).size
+    one = Image.open(plots.learning_curves({"data": data}, tmp_path / "one.png")).size
     assert wide[0] > 1.8 * one[0]  # one panel per curve
     with pytest.raises(ValueError, match="no learning curve"):
-        learning_curves_figure({}, tmp_path / "none.png")
+        plots.learning_curves({}, tmp_path / "none.png")
 
 
 def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):

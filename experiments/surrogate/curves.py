@@ -38,6 +38,7 @@ from pathlib import Path
 import pandas as pd
 
 from condor.config import Config
+from condor.plots import learning_curves
 
 REPO = Path(__file__).resolve().parents[2]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
@@ -106,6 +107,9 @@ def tables(args) -> None:
                        if c in frame.columns]]
         table.to_csv(docs / f"surrogate_curve_{curve}.csv", index=False, float_format="%.4g")
         print(f"{curve}:\n{table.to_string(index=False)}\n")
+    drawn = {curve: frame for curve, frame in picks.items() if not frame.empty}
+    if drawn:
+        print(learning_curves(drawn, docs / "learning_curves.png"))
 
 
 def main() -> None:
