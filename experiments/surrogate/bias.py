@@ -17,17 +17,15 @@ experiments/surrogate/replicas.py --from-store.
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-from condor.dataset import open_dataset  # noqa: E402
-from condor.estimators import statistic_agreement  # noqa: E402
-from condor.fields import STATISTICS  # noqa: E402
-from condor.studies.scoring import predict_replica_moulds, statistics_of, study_dataset  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
+from condor.dataset import open_dataset
+from condor.estimators import statistic_agreement
+from condor.fields import STATISTICS
+from condor.studies.scoring import predict_replica_moulds, statistics_of, study_dataset
+from condor.surrogate.data import dataset_pixel_size
 
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 MAD_TO_SD = 1.4826  # a normal's standard deviation over its median absolute deviation

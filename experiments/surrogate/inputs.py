@@ -22,23 +22,28 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import torch
+from study import (
+    evaluate_checkpoint,  # experiments/surrogate/study.py: Python puts a script's folder on its path
+)
 
-from study import evaluate_checkpoint  # noqa: E402  (experiments/surrogate/study.py: run from this folder's path)
-from condor import inputs as model_inputs  # noqa: E402
-from condor.dataset import open_dataset  # noqa: E402
-from condor.studies.scoring import field_errors, paired_rows, predict_replica_moulds, study_dataset  # noqa: E402
-from condor.surrogate.data import FIELD_NAMES  # noqa: E402
-from condor.moulds import input_channels  # noqa: E402
-from condor.stages.dataset import load_moulds  # noqa: E402
-from condor.surrogate.data import dataset_pixel_size  # noqa: E402
-from condor.surrogate.train import train  # noqa: E402
-from condor.surrogate.variants import train_config  # noqa: E402
+from condor import inputs as model_inputs
+from condor.dataset import open_dataset
+from condor.moulds import input_channels
+from condor.stages.dataset import load_moulds
+from condor.studies.scoring import (
+    field_errors,
+    paired_rows,
+    predict_replica_moulds,
+    study_dataset,
+)
+from condor.surrogate.data import FIELD_NAMES, dataset_pixel_size
+from condor.surrogate.train import train
+from condor.surrogate.variants import train_config
 
 KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics", "mechanics_shear")
 # the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
