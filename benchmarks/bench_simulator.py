@@ -28,6 +28,7 @@ from pathlib import Path
 import numpy as np
 from shapely.geometry import box
 
+from condor.config import Config
 from condor.data import fields as F
 from condor.model.anneal import anneal
 from condor.model.energy import DELTA, bond_energies, energy_gradient, random_orientations
@@ -151,7 +152,8 @@ def _print(row: dict) -> None:
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="default", help="scene of the solves")
-    ap.add_argument("--seed", type=int, default=2026, help="dataset seed of the mould")
+    ap.add_argument("--seed", type=int, default=Config.default().seed,
+                    help="dataset seed of the mould (default: the default config's)")
     ap.add_argument("--solvers", nargs="+", default=[DEFAULT_SOLVER, "hybrid"])
     a = ap.parse_args()
     warm_up()

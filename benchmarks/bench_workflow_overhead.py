@@ -30,7 +30,9 @@ def run_once(n_moulds: int, batch_size: int) -> float:
                "--workflow-profile", str(REPO / "profiles" / "default"), "--directory", tmp,
                "--configfile", str(REPO / "config" / "tiny.yaml"), str(overlay), "--until", "gallery", "--quiet"]
         start = time.perf_counter()
-        subprocess.run(cmd, check=True, capture_output=True)
+        done = subprocess.run(cmd, capture_output=True, text=True)
+        if done.returncode != 0:
+            raise SystemExit(f"snakemake failed ({done.returncode}):\n{done.stderr[-3000:]}")
         return time.perf_counter() - start
 
 

@@ -1,14 +1,17 @@
-"""Every benchmark script still imports against the current library and answers --help.
+"""The performance tools (benchmarks/) run on the tiny scene; every experiment script
+(experiments/<study>/) still imports against the current library and answers --help.
 
 A script does its work only under `if __name__ == "__main__"`, so importing it and asking for
 its --help are cheap; together they catch imports of moved or removed library names, which
-no other test exercises. A script without argparse would run its workload on --help, so
-its --help is skipped.
+no other test exercises. The benchmarks are run for real, with the smallest settings, in a
+scratch folder: each must finish and print its figures (the figures themselves depend on the
+machine and are not checked).
 """
 
 from __future__ import annotations
 
 import importlib.util
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -17,31 +20,60 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 BENCHMARKS = sorted((REPO / "benchmarks").glob("*.py"))
+EXPERIMENTS = sorted((REPO / "experiments").glob("*/*.py"))
+
+# Each performance tool with its smallest settings on the tiny scene, and a word its output
+# must hold.
+SMOKE = {
+    "bench_fields": (["--cells", "300", "--repeats", "1"], "ms"),
+    "bench_simulator": (["--scene", "tiny", "--solvers", "lbfgs"], "lbfgs"),
+    "bench_surrogate": (["--repeats", "1", "--batch", "2", "--threads", "1"], "s/mould"),
+    "bench_design": (["--scene", "tiny", "--budget", "20", "--repeats", "1"], "designs"),
+    "bench_workflow_overhead": (["--moulds", "6", "--repeats", "1", "--sizes", "6"], "job"),
+}
 
 
 def _id(path: Path) -> str:
-    return path.stem
+    return f"{path.parent.name}/{path.stem}"
 
 
-def test_benchmarks_found():
-    assert BENCHMARKS, "no benchmarks/*.py found"
+def test_benchmarks_are_the_performance_tools_and_studies_live_in_experiments():
+    assert {p.stem for p in BENCHMARKS} == set(SMOKE)
+    assert EXPERIMENTS, "no experiments/*/*.py found"
+    for folder in {p.parent for p in EXPERIMENTS}:
+        assert (folder / "README.md").is_file(), f"{folder.name} has no README.md"
 
 
-@pytest.mark.parametrize("script", BENCHMARKS, ids=_id)
-def test_benchmark_imports_and_answers_help(script: Path):
-    name = f"_benchmark_{script.stem}"
+@pytest.mark.parametrize("script", EXPERIMENTS + BENCHMARKS, ids=_id)
+def test_script_imports_without_path_tricks_and_answers_help(script: Path):
+    text = script.read_text()
+    assert "sys.path.insert" not in text and "sys.path.append" not in text
+    name = f"_script_{script.parent.name}_{script.stem}"
     spec = importlib.util.spec_from_file_location(name, script)
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # as `import` does: dataclasses look their module up there
+    sys.path.insert(0, str(script.parent))  # as `python <script>` does for its own folder
     try:
         spec.loader.exec_module(module)
     except SystemExit as err:  # a script must not run (or exit) at import
         pytest.fail(f"{script.name} exited at import ({err.code!r})")
     finally:
         sys.modules.pop(name, None)
-    if "argparse" not in script.read_text():
+        sys.path.remove(str(script.parent))
+    if "argparse" not in text:
         pytest.skip(f"{script.name} has no argparse: --help would run its workload")
     done = subprocess.run([sys.executable, str(script), "--help"], cwd=REPO, capture_output=True,
                           text=True, timeout=120)
     assert done.returncode == 0, f"{script.name} --help failed:\n{done.stderr[-2000:]}"
     assert "usage:" in done.stdout
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("script", BENCHMARKS, ids=_id)
+def test_benchmark_runs_on_the_tiny_scene(script: Path, tmp_path):
+    args, word = SMOKE[script.stem]
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
+    done = subprocess.run([sys.executable, str(script), *args], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600, env=env)
+    assert done.returncode == 0, f"{script.name} failed:\n{done.stderr[-3000:]}"
+    assert word in done.stdout, done.stdout[-2000:]

@@ -2,6 +2,7 @@
 its plain-words verdicts, and that it renders in headless Chromium."""
 
 import base64
+import html
 import html.parser
 import re
 
@@ -125,7 +126,7 @@ def statistics_table(n=12, bias=0.002, r=0.99, stats=("mean_P", "mean_T")):
 
 def fake_inputs(tmp_path):
     d = tmp_path
-    for name in ("gallery", "samples", "chart", "conv", "spread", "dconf", "dhist", "dfig", "curves"):
+    for name in ("gallery", "samples", "chart", "conv", "spread", "dconf", "dhist", "dfig"):
         png(d / f"{name}.png", seed=len(name))
     pd.DataFrame({"sample": range(4), "mould": range(4), "split": ["train", "train", "val", "test"],
                   "status": ["ok", "ok", "ok", "folded: 2% inverted"],
@@ -156,12 +157,6 @@ def fake_inputs(tmp_path):
     pd.DataFrame({"method": ["unet_eval"], "mae_P": [0.1]}).to_csv(d / "ssum.csv", index=False)
     fidelity_table(relaxed=(0.04, 0.0, 0.08)).to_csv(d / "fidelity.csv", index=False)
     pd.DataFrame({"epoch": [1, 2], "l1": [0.5, 0.4]}).to_csv(d / "unet_history.csv", index=False)
-    pd.DataFrame({"n_train": [50, 100], "epochs": [20, 10], "field_rms": [0.4, 0.3],
-                  "field_rms_lo": [0.35, 0.25], "field_rms_hi": [0.45, 0.35],
-                  "ceiling_rms": [0.5, 0.5]}).to_csv(d / "surrogate_curve_data.csv", index=False)
-    pd.DataFrame({"reference": ["old"], "checkpoint": ["nodrop"], "ratio": [0.985],
-                  "ratio_lo": [0.953], "ratio_hi": [1.009], "T:ratio": [0.8],
-                  "unshown": [7]}).to_csv(d / "surrogate_recipes_paired.csv", index=False)
     figures = d / "evaluation" / "unet" / "figures"
     figures.mkdir(parents=True)
     png(figures / "unet_eval_statistics.png", seed=9)
@@ -193,9 +188,7 @@ def fake_inputs(tmp_path):
               "evaluations": [figures], "histories": [d / "unet_history.csv"],
               "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
               "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
-              "design_figure": d / "dfig.png", "learning_curves": d / "curves.png",
-              "learning_curve_tables": [d / "surrogate_curve_data.csv",
-                                        d / "surrogate_recipes_paired.csv"]}
+              "design_figure": d / "dfig.png"}
     assert set(inputs) == set(report.REPORT_INPUTS)
     return inputs, store
 
@@ -206,34 +199,43 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     page = out.read_text()
     p = parse(page)
     assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#design", "#dataset"]
-    assert len(p.images) == 10  # chart, spread, convergence, curves, evaluation, 3 design,
-    # gallery, samples
+    assert len(p.images) == 9  # chart, spread, convergence, evaluation, 3 design, gallery,
+    # samples
+    assert "results results" not in page and f"folder {CONFIG.results}" in page
     assert "which beats the best of the 24 test moulds" in page and "rho 0.92" in page
     assert "90% interval covers" in page
     assert all(src.startswith("data:image/png;base64,") for src in p.images)
     assert "src=\"http" not in page and "href=\"http" not in page  # self-contained
     summary = page[page.index('id="summary"'):page.index('id="accuracy"')]
-    assert "3 of 4 simulations finished ok" in summary and "folded" in summary
-    assert summary.index("Fidelity to the paper") < summary.index("3 of 4 simulations")
-    assert "closer to the average organisation than one simulation" in summary
-    assert "On every test mould: One simulation" in summary and "24 test moulds" in summary
-    assert "unet (0.07 [0.065, 0.075]" in summary  # the field error on every test mould
+    # the headline first: the surrogate on every test mould, then one sentence of verdict
+    headline = html.unescape(summary[:summary.index("3 of 4 simulations")])
+    assert "0.07 [0.065, 0.075] on all 24 test moulds" in headline
+    assert "one simulation (the noise ceiling): 0.1 [0.09, 0.11]" in headline
+    assert "2 ms (one thread); one simulation 2 s (1,000 times the surrogate's)" in headline
+    assert "hold 88%" in headline and "mean P +3.0% [+2.9, +3.1]" in headline
+    assert "the dataset's solver (relaxed_anneal) 0.04 [0, 0.08]" in headline
+    assert ("Verdict: unet lands closer to the expected organisation than one simulation on all "
+            "24 test moulds, at 2 ms a mould; its spread map is calibrated; its largest bias is "
+            "mean P +3.0%; the dataset's solver is not resolved from the paper's CONDOR.") in headline
     assert "0.881" in summary  # the paper's r beside ours
-    # the surrogate on every test mould first (24, biased 3% in the fake), then the study's 12
-    every = summary.index("unet on every test mould")
-    study = summary.index("unet on the test moulds of the accuracy study")
-    assert every < study
+    # One set of figures per question: the surrogate's statistics on every test mould only
+    assert "unet on every test mould" in summary
+    assert "unet on the test moulds of the accuracy study" not in page
     against = "test moulds against the expected statistics (the replica means)"
     assert f"unet on 24 {against}: biased by more than 1%" in summary
-    assert f"unet on 12 {against}: no statistic is biased" in summary
+    assert f"unet on 12 {against}" not in page
+    # the study's 12 moulds answer the methods' question, without the surrogate's verdict
+    study = html.unescape(summary[summary.index("On the 12 moulds every method ran on"):])
+    assert "One simulation of the dataset's solver" in study and "unet" not in study.split("</p>")[0]
     accuracy = page[page.index('id="accuracy"'):page.index('id="simulator"')]
+    assert "<td>unet</td><td>surrogate</td><td>0.002</td><td>0.07</td>" in accuracy
+    assert "<td>unet</td><td>surrogate</td><td>0.002</td><td>0.05</td>" not in accuracy
     calibration = accuracy[accuracy.index("Calibration of the predicted"):]
-    assert "<td>unet</td><td>12</td>" in calibration  # the study's moulds and every test mould
+    assert "<td>unet</td><td>12</td>" not in calibration  # every test mould only
     assert "<td>unet</td><td>24</td><td>0.6 [0.55, 0.65]</td><td>0.88 [" in calibration
     assert page.count("<details") >= 4  # galleries and long tables fold away
-    recipes = page[page.index("surrogate_recipes_paired:"):]
-    assert "one row per pair of trained models" in recipes and "nodrop" in recipes
-    assert "unshown" not in page  # only the named columns
+    # findings measured outside the run: read from condor.findings, with their provenance
+    assert "experiments/surrogate at " in page and "experiments/anneal_ladder at " in page
     # A missing evaluation figure is an error, not a placeholder.
     (tmp_path / "evaluation" / "unet" / "figures" / "unet_eval_statistics.png").unlink()
     with pytest.raises(report.ReportError, match="figures"):
@@ -317,25 +319,20 @@ def test_report_renders_in_headless_chromium(tmp_path):
     assert report.screenshot_coverage(report.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
 
 
-def test_learning_curves_figure_draws_each_table_and_refuses_none(tmp_path):
-    from condor.stages.surrogate import learning_curves_figure
-
+def test_learning_curves_draws_each_table_and_refuses_none(tmp_path):
+    # drawn by experiments/surrogate/curves.py from its tables
     data = pd.DataFrame({"n_train": [50, 100, 200], "epochs": [40, 20, 10],
                          "field_rms": [0.4, 0.3, 0.25], "field_rms_lo": [0.35, 0.25, 0.2],
                          "field_rms_hi": [0.45, 0.35, 0.3], "ceiling_rms": [0.5] * 3})
-    data.to_csv(tmp_path / "data.csv", index=False)
     epochs = data.assign(epochs=[10, 20, 40]).drop(columns="n_train")
-    epochs.to_csv(tmp_path / "epochs.csv", index=False)
-    out = learning_curves_figure({"data": tmp_path / "data.csv", "epochs": tmp_path / "epochs.csv"},
-                                 tmp_path / "curves.png")
+    out = plots.learning_curves({"data": data, "epochs": epochs}, tmp_path / "curves.png")
     from PIL import Image
 
     wide = Image.open(out).size
-    one = Image.open(learning_curves_figure({"data": tmp_path / "data.csv"},
-                                            tmp_path / "one.png")).size
+    one = Image.open(plots.learning_curves({"data": data}, tmp_path / "one.png")).size
     assert wide[0] > 1.8 * one[0]  # one panel per curve
     with pytest.raises(ValueError, match="no learning curve"):
-        learning_curves_figure({}, tmp_path / "none.png")
+        plots.learning_curves({}, tmp_path / "none.png")
 
 
 def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):
@@ -381,5 +378,25 @@ def test_dataset_line_names_the_tether_free_test_moulds_replicas():
     plain = Config.default(simulation={"replicas": {"test": 8, "test_tether_free": None}})
     plain = report._dataset_line(plain, summary)
     assert "test 8." in plain and "tether-free" not in plain and "1 failed" in plain
-    # the default run's: 4 replicas a test mould, 20 a tether-free one
-    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(Config.default(), summary)
+    config = Config.default(simulation={"replicas": {"test": 4, "test_tether_free": 20}})
+    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(config, summary)
+
+
+def test_headline_without_a_spread_map_or_a_reference_says_so():
+    every = accuracy_table(surrogate=(0.2, 0.18, 0.22)).assign(n_moulds=24)
+    stats = statistics_table(n=24, bias=-0.02)
+    numbers, words = report.headline(every, stats, pd.DataFrame(columns=["method", "n_moulds"]),
+                                     fidelity_table().iloc[:0], "unet")
+    assert list(numbers["question"]) == [
+        "Error against the expected fields", "Time a mould", "Calibration of the spread map",
+        "Largest bias (whole-mould statistic)", "Distance to the paper's CONDOR"]
+    answers = dict(zip(numbers["question"], numbers["answer"]))
+    assert answers["Calibration of the spread map"] == "unet predicts no spread"
+    assert answers["Distance to the paper's CONDOR"].startswith("not measured")
+    assert "mean P -2.0% [-2.1, -1.9]" in answers["Largest bias (whole-mould statistic)"]
+    assert words.startswith("Verdict: unet lands farther from the expected organisation than "
+                            "one simulation on all 24 test moulds")
+    assert "not resolved" not in words and "paper's CONDOR" not in words
+    with pytest.raises(report.ReportError, match="no row"):
+        report.headline(every[every["method"] != "single simulation"], stats,
+                        pd.DataFrame(), fidelity_table(), "unet")

@@ -237,7 +237,7 @@ def accuracy_chart(table, path, title: str = "") -> Path:
     return save(fig, path, dpi=120)
 
 
-# The curves' x axes: training moulds, parameters, epochs (benchmarks/bench_surrogate_curves.py).
+# The curves' x axes: training moulds, parameters, epochs (experiments/surrogate/curves.py).
 CURVE_AXES = {"data": ("n_train", "training moulds", True),
               "size": ("parameters", "parameters", True),
               "epochs": ("epochs", "epochs", False)}

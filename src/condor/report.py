@@ -23,12 +23,13 @@ import numpy as np
 import pandas as pd
 
 from condor.version import __version__
+from condor.findings import load_findings, more_moulds_sentence
 from condor.data.store import open_store
 from condor.measures.bars import MAX_BIAS, MIN_R, R_CEILING_SLACK, SAME_STATES
 
 CSS = """
 body{font-family:system-ui,sans-serif;max-width:1150px;margin:2em auto;padding:0 1em;color:#222}
-h1{font-size:1.6em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
+h1{font-size:1.5em}h2{border-bottom:1px solid #ccc;padding-bottom:.2em;margin-top:2em}
 figure{margin:1.2em 0}figure img{max-width:100%;border:1px solid #eee}
 figcaption,caption{font-size:.9em;color:#444;text-align:left;margin:.3em 0}
 table{border-collapse:collapse;font-size:.85em;margin:.8em 0}
@@ -39,6 +40,9 @@ td:first-child,th:first-child{text-align:left}nav li{margin:.15em 0}
 details{margin:.8em 0;border:1px solid #e4e4e4;border-radius:4px;padding:.3em .7em}
 summary{cursor:pointer;font-weight:600;color:#08519c}
 .verdict{background:#f5f9ff;border-left:4px solid #08519c;padding:.5em .9em;margin:1em 0}
+.headline{font-size:1em;margin:.6em 0}.headline th{text-align:left;white-space:nowrap}
+.headline td{text-align:left}nav{font-size:.9em;margin:.3em 0}h1{margin:.4em 0}
+section#summary h2{margin-top:.6em}
 .grid{display:flex;flex-wrap:wrap;gap:1.5em;align-items:flex-start}.grid>div{flex:1 1 420px}
 """
 
@@ -73,10 +77,32 @@ def figure(path, caption: str, alt: str | None = None) -> str:
     path = _existing(path, "figure")
     if path.suffix.lower() != ".png":
         raise ReportError(f"figure {str(path)!r} must be a .png")
-    data = base64.b64encode(path.read_bytes()).decode("ascii")
+    data = base64.b64encode(_compact_png(path)).decode("ascii")
     alt = html.escape(alt or path.stem)
     return (f'<figure><img alt="{alt}" src="data:image/png;base64,{data}">'
             f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+
+
+# A PNG larger than this is embedded with its colours quantised to a 256-colour palette
+# (matplotlib's figures hold few colours; the page stays small), when that is smaller.
+COMPACT_PNG_BYTES = 20_000
+
+
+def _compact_png(path: Path) -> bytes:
+    """The PNG's bytes, or those of its 256-colour quantised copy when it is larger than
+    COMPACT_PNG_BYTES and the copy is smaller."""
+    raw = path.read_bytes()
+    if len(raw) <= COMPACT_PNG_BYTES:
+        return raw
+    import io
+
+    from PIL import Image
+
+    with Image.open(io.BytesIO(raw)) as image:
+        small = image.convert("RGB").quantize(colors=256, method=Image.Quantize.MEDIANCUT)
+        out = io.BytesIO()
+        small.save(out, format="PNG", optimize=True)
+    return out.getvalue() if out.tell() < len(raw) else raw
 
 
 def _format(value, digits: int) -> str:
@@ -137,14 +163,14 @@ def render(title: str, sections: list[Section], meta: str = "") -> str:
     ids = [s.id for s in sections]
     if len(set(ids)) != len(ids):
         raise ReportError(f"section ids repeat: {ids}")
-    toc = "".join(f'<li><a href="#{html.escape(s.id)}">{html.escape(s.title)}</a></li>'
-                  for s in sections)
+    toc = " · ".join(f'<a href="#{html.escape(s.id)}">{html.escape(s.title)}</a>'
+                     for s in sections)
     body = "".join(f'<section id="{html.escape(s.id)}"><h2>{html.escape(s.title)}</h2>'
                    + "".join(s.blocks) + "</section>" for s in sections)
     return (f'<!DOCTYPE html><html lang="en"><head><meta charset="utf-8">'
             f"<title>{html.escape(title)}</title><style>{CSS}</style></head><body>"
             f"<h1>{html.escape(title)}</h1><p class=\"meta\">{html.escape(meta)}</p>"
-            f"<nav><h2>Contents</h2><ol>{toc}</ol></nav>{body}</body></html>")
+            f"<nav>Contents: {toc}</nav>{body}</body></html>")
 
 
 def write_report(path, title: str, sections: list[Section], meta: str = "") -> Path:
@@ -178,15 +204,6 @@ REPORT_INPUTS = {
     "surrogate_summary": "the paper's measures per variant and baseline (CSV)",
     "evaluations": "evaluation folders, one per variant and one for the baselines",
     "histories": "training history per variant (CSV)",
-    "learning_curves": "the surrogate's learning curves (PNG, measured outside the run)",
-    "learning_curve_tables": ("the learning curves' and the paired studies' tables: recipes, "
-                              "inputs, data and tension, field weights, optimiser, mechanical "
-                              "prior, recipes and training sets up to 2,060 moulds on 196 "
-                              "pooled moulds (docs/data/surrogate_curve_*.csv, "
-                              "surrogate_recipes*.csv, surrogate_inputs*.csv, "
-                              "surrogate_tension*.csv, "
-                              "surrogate_weights*.csv, surrogate_optimiser*.csv, "
-                              "surrogate_mechanics*.csv, surrogate_pooled.csv)"),
     "design_table": "the ranked designs, predicted and simulated objectives (CSV)",
     "design_summary": "rank correlation, bias and improvement of the design run (CSV)",
     "design_confirmation": "predicted against simulated objective of the confirmed designs (PNG)",
@@ -260,11 +277,9 @@ def statistics_table(statistics: pd.DataFrame, method: str) -> pd.DataFrame:
     })
 
 
-# What the training-set study outside the run found for the orientation statistics.
+# The whole-mould statistics of the orientation, which the training-set study outside the run
+# (condor.findings "more_moulds") measured against the number of training moulds.
 ORIENTATION_STATISTICS = {"mean_Sx2", "mean_Sx2_norm", "mean_Sy2", "mean_Sy2_norm"}
-MORE_MOULDS = ("Measured outside this run, the orientation r rises with more training moulds "
-               "and not with longer training (docs/surrogate.md, \"The orientation statistics "
-               "need more moulds\").")
 
 
 def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:
@@ -286,21 +301,14 @@ def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:
                  f"{', '.join(short)}." if short else
                  f"Every r is at least {MIN_R:g} or within {R_CEILING_SLACK:g} of its ceiling.")
     if any(r.statistic in ORIENTATION_STATISTICS for r in short_rows):
-        words.append(MORE_MOULDS)
+        words.append(more_moulds_sentence(load_findings()["more_moulds"]))
     return " ".join(words)
-
-
-# What the longer ladder outside the run measured (docs/model.md, "The anneal ladder").
-PAPER_LADDER = ("The paper's own budget is 1e6 moves per cell. The longer ladder measured "
-                "outside this run (docs/model.md, benchmarks/bench_anneal_ladder.py) resolves a "
-                "difference from 1e5 moves per cell on: the fast solver's cells lie flatter and "
-                "more along x (normalised Sx2 +0.1, Sz2 -0.1; tension unchanged), about 1.3 "
-                "times one simulation's scatter, at 0.4-2% higher energy.")
 
 
 def ladder_verdict(ladder: pd.DataFrame) -> str:
     """Whether the longest rung's ensemble matches the dataset solver's, and what the longer
     ladder measured outside the run says beyond it."""
+    paper_ladder = load_findings()["paper_ladder"].sentence()  # measured outside the run
     rungs = ladder[ladder["rung"] != "dataset solver"].dropna(subset=["distance_to_dataset"])
     if rungs.empty:
         return "The ladder has no finished rung."
@@ -310,12 +318,12 @@ def ladder_verdict(ladder: pd.DataFrame) -> str:
     if far.empty:
         return (f"On every ladder mould, the anneal of {budget} moves per cell (then relaxed) lands "
                 "within half of one simulation's scatter of the dataset solver's expected fields: "
-                "at this budget the fast solver samples the same states. " + PAPER_LADDER)
+                "at this budget the fast solver samples the same states. " + paper_ladder)
     ratio = (far["distance_to_dataset"] / far["spread"]).median()
     return (f"On {len(far)} of {len(longest)} ladder moulds the anneal of {budget} moves per cell "
             f"(then relaxed) differs from the dataset solver's expected fields by more than half a "
             f"simulation's scatter (median distance {ratio:.2g} x the scatter): the dataset "
-            "solver's expected fields carry that bias against the slower anneal. " + PAPER_LADDER)
+            "solver's expected fields carry that bias against the slower anneal. " + paper_ladder)
 
 
 def fidelity_verdict(fidelity: pd.DataFrame) -> str:
@@ -374,42 +382,147 @@ def _failures(summary: pd.DataFrame) -> list[str]:
                           "as samples).")]
 
 
+# The headline's verdict on the spread map: its 90% intervals are calibrated when they hold
+# between these shares of the replicas' pixels.
+CALIBRATED_90 = (0.85, 0.95)
+
+
+def _row(frame: pd.DataFrame, method: str):
+    rows = frame[frame["method"] == method]
+    return rows.iloc[0] if len(rows) else None
+
+
+def headline(accuracy_test: pd.DataFrame, statistics_test: pd.DataFrame,
+             calibration_test: pd.DataFrame, fidelity: pd.DataFrame,
+             method: str) -> tuple[pd.DataFrame, str]:
+    """The report's first screen: five rows (question, answer) for `method` on every test mould
+    (the field error against the noise ceiling, its time a mould, the calibration of its spread
+    map, its largest whole-mould bias) and the dataset solver's distance to the paper's CONDOR;
+    and one sentence of verdict."""
+    rows, verdicts = [], []
+    error, ceiling = _row(accuracy_test, method), _row(accuracy_test, "single simulation")
+    if error is None or ceiling is None:
+        raise ReportError(f"the every-test-mould table has no row for {method!r} or for "
+                          "'single simulation'")
+    n = int(error["n_moulds"])
+    rows.append(("Error against the expected fields",
+                 f"{_interval(error.field_error, error.field_error_lo, error.field_error_hi)} on "
+                 f"all {n} test moulds; one simulation (the noise ceiling): "
+                 f"{_interval(ceiling.field_error, ceiling.field_error_lo, ceiling.field_error_hi)}"))
+    if error.field_error_hi < ceiling.field_error_lo:
+        where = "closer to the expected organisation than one simulation"
+    elif error.field_error_lo > ceiling.field_error_hi:
+        where = "farther from the expected organisation than one simulation"
+    else:
+        where = "as close to the expected organisation as one simulation"
+    cost = ceiling.cpu_s_per_mould / error.cpu_s_per_mould if error.cpu_s_per_mould > 0 else np.nan
+    rows.append(("Time a mould", f"{error.cpu_s_per_mould * 1e3:.3g} ms (one thread); one "
+                 f"simulation {ceiling.cpu_s_per_mould:.3g} s" +
+                 (f" ({cost:,.0f} times the surrogate's)" if np.isfinite(cost) and cost >= 10
+                  else f" ({cost:.2g} times the surrogate's)" if np.isfinite(cost) else "")))
+    verdicts.append(f"{method} lands {where} on all {n} test moulds, at "
+                    f"{error.cpu_s_per_mould * 1e3:.3g} ms a mould")
+    calibration = _row(calibration_test, method) if "method" in calibration_test else None
+    if calibration is not None and "coverage_90" in calibration:
+        c90 = calibration.coverage_90
+        rows.append(("Calibration of the spread map",
+                     f"its 90% intervals hold {100 * c90:.0f}% [{100 * calibration.coverage_90_lo:.0f}, "
+                     f"{100 * calibration.coverage_90_hi:.0f}] of the replicas' pixels (50%: "
+                     f"{100 * calibration.coverage_50:.0f}%)"))
+        state = ("calibrated" if CALIBRATED_90[0] <= c90 <= CALIBRATED_90[1] else
+                 "over-confident" if c90 < CALIBRATED_90[0] else "under-confident")
+        verdicts.append(f"its spread map is {state}")
+    else:
+        rows.append(("Calibration of the spread map", f"{method} predicts no spread"))
+    stats = statistics_test[statistics_test["method"] == method].dropna(subset=["bias"])
+    if len(stats):
+        worst = stats.loc[stats["bias"].abs().idxmax()]
+        label = STATISTIC_LABELS.get(worst.statistic, worst.statistic)
+        resolved = worst.bias_lo > 0 or worst.bias_hi < 0
+        rows.append(("Largest bias (whole-mould statistic)",
+                     f"{label} {_percent(worst.bias, worst.bias_lo, worst.bias_hi)} "
+                     f"(median of predicted / simulated - 1; "
+                     f"{'resolved' if resolved else 'not resolved'} from 0)"))
+        verdicts.append(f"its largest bias is {label} {100 * worst.bias:+.1f}%" +
+                        ("" if resolved else ", within the noise"))
+    if fidelity.empty:
+        rows.append(("Distance to the paper's CONDOR", "not measured: the product holds no "
+                     "reference anneals of this scene and seed"))
+    else:
+        first = fidelity.iloc[0]
+        resolved = first.distance_hi > 0.5 * first.replica_noise
+        rows.append(("Distance to the paper's CONDOR",
+                     f"the dataset's solver ({first.method}) "
+                     f"{_interval(first.distance, first.distance_lo, first.distance_hi)} from the "
+                     f"reference anneals' expected fields; one simulation's scatter "
+                     f"{first.replica_noise:.3f} ({int(first.n_moulds)} moulds)"))
+        verdicts.append("the dataset's solver is " + ("resolved from" if resolved else
+                                                       "not resolved from")
+                        + " the paper's CONDOR")
+    frame = pd.DataFrame(rows, columns=["question", "answer"])
+    return frame, "Verdict: " + "; ".join(verdicts) + "."
+
+
+def _headline_table(frame: pd.DataFrame) -> str:
+    body = "".join(f"<tr><th>{html.escape(q)}</th><td>{html.escape(a)}</td></tr>"
+                   for q, a in frame.itertuples(index=False))
+    return f'<table class="headline"><tbody>{body}</tbody></table>'
+
+
+def _predictors(inp) -> set:
+    """The methods scored on every test mould (surrogates and baselines), not the ceiling."""
+    return set(_csv(inp, "accuracy_test")["method"]) - {"single simulation"}
+
+
 def _summary_section(config, inp) -> Section:
     summary = _csv(inp, "dataset_summary")
     accuracy = _csv(inp, "accuracy")
-    statistics = _csv(inp, "statistics")
     first = config.surrogate["variants"][0] if config.surrogate["variants"] else None
-    blocks = [verdict(fidelity_verdict(_csv(inp, "fidelity"))),
-              paragraph(_dataset_line(config, summary)), *_failures(summary),
-              figure(inp["accuracy_chart"], "Cost per mould against the error of every method "
-                     "against the expected fields of the same test moulds (the mean of their "
-                     "replicas, with the finite-replica noise removed); bars: 95% bootstrap "
-                     "intervals over moulds; line and band: one simulation (the noise ceiling)."),
-              verdict(accuracy_verdict(accuracy))]
+    blocks = []
     if first is not None:
-        blocks.append(verdict("On every test mould: " + accuracy_verdict(
-            _csv(inp, "accuracy_test"))))
         every = _csv(inp, "statistics_test")
-        for frame, moulds in ((every, "every test mould"),
-                              (statistics, "the test moulds of the accuracy study")):
-            blocks += [table(statistics_table(frame, first),
-                             f"{first} on {moulds}: whole-mould statistics against the expected "
-                             "statistics (r against the replica means with their finite-replica "
-                             "noise removed, 95% interval, n), the ceiling r a perfect predictor "
-                             "reaches against one simulation, the bias (median of predicted / "
-                             "simulated - 1), and the paper's r."),
-                       verdict(statistics_verdict(frame, first))]
+        calibration = (_csv(inp, "calibration_test") if Path(inp["calibration_test"]).stat()
+                       .st_size > 1 else pd.DataFrame())  # empty: no surrogate with a spread
+        numbers, words = headline(_csv(inp, "accuracy_test"), every, calibration,
+                                  _csv(inp, "fidelity"), first)
+        blocks += [_headline_table(numbers), verdict(words)]
+    blocks += [paragraph(_dataset_line(config, summary)), *_failures(summary)]
+    if first is not None:
+        blocks += [table(statistics_table(every, first),
+                         f"{first} on every test mould: whole-mould statistics against the "
+                         "expected statistics (r against the replica means with their "
+                         "finite-replica noise removed, 95% interval, n), the ceiling r a "
+                         "perfect predictor reaches against one simulation, the bias (median of "
+                         "predicted / simulated - 1), and the paper's r."),
+                   verdict(statistics_verdict(every, first))]
+    n_study = int(accuracy["n_moulds"].max())
+    blocks += [figure(inp["accuracy_chart"], f"Every method on the same {n_study} test moulds "
+                      "(the surrogate's figures above are on all test moulds): cost per mould "
+                      "against the error against the expected fields (the mean of their "
+                      "replicas, with the finite-replica noise removed); bars: 95% bootstrap "
+                      "intervals over moulds; line and band: one simulation (the noise "
+                      "ceiling)."),
+               verdict(f"On the {n_study} moulds every method ran on: " + accuracy_verdict(
+                   accuracy[~accuracy["method"].isin(_predictors(inp))]))]
     return Section("summary", "At a glance", blocks)
 
 
 def _accuracy_section(inp) -> Section:
     accuracy = _csv(inp, "accuracy")
     statistics = _csv(inp, "statistics")
-    main = accuracy[["method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
-                     "field_error_hi", "field_error_plain", "n_moulds"]]
-    per_field = accuracy[["method"] + [c for c in accuracy.columns if c.startswith("error_")]]
-    methods = [m for m in dict.fromkeys(statistics["method"])]
     every = _csv(inp, "statistics_test")
+    every_error = _csv(inp, "accuracy_test")
+    # One set of figures per question: the predictors (surrogates, baselines) are scored on
+    # every test mould, the simulation methods on the study's moulds; the ceiling on both.
+    predictors = _predictors(inp)
+    columns = ["method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
+               "field_error_hi", "field_error_plain", "n_moulds"]
+    main = pd.concat([every_error[columns].assign(moulds="every test mould"),
+                      accuracy[~accuracy["method"].isin(predictors)][columns].assign(
+                          moulds="the study's moulds")], ignore_index=True)
+    per_field = accuracy[~accuracy["method"].isin(predictors)]
+    per_field = per_field[["method"] + [c for c in accuracy.columns if c.startswith("error_")]]
+    methods = [m for m in dict.fromkeys(statistics["method"]) if m not in predictors]
     return Section("accuracy", "Accuracy against the expected organisation", [
         paragraph("The truth of every figure is a mould's expected fields: the mean over its "
                   "replicas (the same mould simulated with several seeds). Errors are RMS over "
@@ -417,11 +530,14 @@ def _accuracy_section(inp) -> Section:
                   "(condor.measures.estimators); field_error_plain keeps it. Intervals: 95% bootstrap "
                   "over moulds."),
         table(main, "Every method: CPU seconds per mould, field error against the expected "
-                    "fields [95% interval], the plain error and the moulds scored.", digits=3),
-        folded("Field error per field", [table(per_field, "RMS error per field against the "
+                    "fields [95% interval], the plain error and the moulds scored (surrogates "
+                    "and baselines on every test mould, the simulation methods on the study's "
+                    "moulds, one simulation on both).", digits=3),
+        folded("Field error per field", [table(per_field, "Simulation methods on the study's "
+                                                          "moulds: RMS error per field against the "
                                                           "expected fields (noise removed).",
                                                digits=3)]),
-        folded("Whole-mould statistics of every method", [
+        folded("Whole-mould statistics of the simulation methods (the study's moulds)", [
             table(statistics_table(statistics, m), f"{m}: r against the expected statistics "
                   "(the replica means, their noise removed), "
                   "ceiling, bias, n, the paper's r.") for m in methods]),
@@ -436,9 +552,11 @@ def _accuracy_section(inp) -> Section:
 
 def _reproducibility_blocks(inp) -> list[str]:
     """The surrogate's reproducibility map: calibration against the replicas, and the maps."""
-    frames = [_csv(inp, key) for key in ("calibration", "calibration_test")
+    # On every test mould when the run scored them all (one set of figures per question),
+    # else on the study's moulds.
+    frames = [_csv(inp, key) for key in ("calibration_test", "calibration")
               if Path(inp[key]).stat().st_size > 1]
-    calibration = pd.concat(frames, ignore_index=True) if frames else pd.DataFrame()
+    calibration = frames[0] if frames else pd.DataFrame()
     blocks = [paragraph("Will this mould give the same tissue twice? A surrogate with a spread "
                         "head predicts, per pixel and field, how far one simulation scatters "
                         "about the expected fields. Checked against the replicas of the test "
@@ -504,40 +622,33 @@ def _surrogate_section(config, inp) -> Section:
         last = history.tail(1)
         blocks.append(table(last, f"{Path(path).stem}: the last epoch of training "
                                   f"({len(history)} epochs in all).", digits=4))
-    curve_columns = ("name", "kind", "reference", "checkpoint", "n_train", "parameters", "epochs",
-                     "field_rms", "field_rms_lo", "field_rms_hi", "ceiling_rms", "ratio",
-                     "ratio_lo", "ratio_hi", "P:ratio", "T:ratio", "T:rms", "mean_T:r",
-                     "mean_T:bias", "mean_Sx2:r", "mean_Sx2:bias", "n_P_gt_0.2:bias",
-                     "coverage_90", "changes", "n_moulds", "field_error", "field_error_lo",
-                     "field_error_hi", "ceiling", "n_P_gt_0.2:r", "mean_Sy2:r", "mean_Sy2:bias",
-                     "tethered mean_Sx2:r", "tethered mean_Sy2:r")
-    curve_tables = []
-    for path in inp["learning_curve_tables"]:
-        curve = pd.read_csv(_existing(path, "learning curve table"))
-        rows = ("one row per pair of trained models (field error ratio, paired bootstrap)"
-                if "ratio" in curve.columns else "one row per trained model")
-        curve_tables.append(table(curve, f"{Path(path).stem}: {rows}.",
-                                  [c for c in curve_columns if c in curve.columns], digits=3))
-    blocks += [figure(inp["learning_curves"],
-                      "Learning curves of the default surrogate's design (measured outside "
-                      "this run, before the paired recipe study set its training: "
-                      "benchmarks/bench_surrogate_curves.py, docs/surrogate.md): field error "
-                      "against the expected fields of the test moulds, with its 95% interval, "
-                      "against training moulds (same optimiser steps), model size and epochs; "
-                      "dashed, one simulation's error (the ceiling)."),
-               folded("Learning curves and the paired studies (recipes, inputs, data and "
-                      "tension, field weights, optimiser, mechanical prior, recipes and "
-                      "training sets up to 2,060 moulds on 196 pooled moulds; "
-                      "docs/surrogate.md): the tables",
-                      curve_tables)]
+    blocks.append(folded("Findings measured outside this run (condor.findings: each with "
+                         "its experiment folder and commit)", findings_blocks()))
     for folder in map(Path, inp["evaluations"]):  # <evaluation>/<method>/figures
         figures = sorted(folder.glob("*.png"))
         if not figures:
             raise ReportError(f"no evaluation figures in {str(folder)!r}")
         name = folder.parent.name
+        if name == "baselines":  # their measures are in the table; their pictures stay on disk
+            blocks.append(paragraph(f"The baselines' evaluation figures ({len(figures)}): "
+                                    f"{folder}."))
+            continue
         blocks.append(folded(f"Evaluation figures: {name}",
                              [figure(p, _evaluation_caption(name, p.stem)) for p in figures]))
     return Section("surrogate", "Surrogate: the paper's measures and figures", blocks)
+
+
+def findings_blocks() -> list[str]:
+    """The findings shipped with the package (condor.findings), each with its question and
+    provenance: a sentence, or its table."""
+    blocks = []
+    for finding in load_findings().values():
+        if finding.statement:
+            blocks.append(paragraph(f"{finding.question} {finding.sentence()}"))
+        else:
+            blocks.append(table(finding.frame(), f"{finding.question} Measured by "
+                                f"{finding.provenance}.", digits=3))
+    return blocks
 
 
 def _evaluation_caption(name: str, stem: str) -> str:
@@ -639,9 +750,9 @@ def condor_report(config, inputs, store, out_html) -> Path:
                 _design_section(config, inputs), _dataset_section(inputs, store)]
     stamp = datetime.datetime.now().isoformat(timespec="seconds")
     meta = (f"condor {__version__}; scene {config.scene.name}; {config.n_moulds} moulds; "
-            f"results {config.results}; written {stamp}")
-    return write_report(out_html, "condor: dataset, simulator and surrogate report", sections,
-                        meta)
+            f"folder {config.results}; written {stamp}")
+    return write_report(out_html, "condor report: the surrogate against the simulations",
+                        sections, meta)
 
 # --- checking that it renders --------------------------------------------------------------
 

@@ -68,8 +68,6 @@ def report_inputs(wildcards):
         "evaluations": [*expand(f"{EVALUATION}/{{variant}}/figures", variant=list(VARIANTS)),
                         f"{EVALUATION}/baselines/figures"],
         "histories": expand(f"{R}/models/{{variant}}_history.csv", variant=list(VARIANTS)),
-        "learning_curves": rules.learning_curves.output[0],
-        "learning_curve_tables": [*LEARNING_CURVES.values(), *RECIPE_TABLES],
         "design_table": rules.design.output.table,
         "design_summary": rules.design.output.summary,
         "design_confirmation": rules.design.output.confirmation,

@@ -9,7 +9,7 @@ The *lattice channels* are the simulation's own starting point instead: the init
 (`condor.data.fields.rasterise`), per pixel in units of a full FCC column (`column_cells`), so the
 inside of a mould reads ~1 whatever the scene. They place the outline and every post to a
 fraction of a pixel, and their sum times the column unit is N_c. Measured in
-docs/surrogate.md ("The inputs"): the tension field's error falls by a third.
+experiments/surrogate/README.md ("The inputs"): the tension field's error falls by a third.
 
 A mould known only as a picture has no lattice; `estimate_lattice_channels` places the same
 FCC sites over the occupied pixels (as `physics.estimate_n_cells` counts them): approximate,
@@ -20,7 +20,7 @@ The *stress channels* (`spring_stress`, input kind `mechanics`) are a cheap mech
 the stress of a linear spring network on the pixel grid (springs to the 4 axial and 4
 diagonal neighbours inside the mould and its posts) that contracts isotropically with the
 post pixels held fixed, sigma_xx and sigma_yy per pixel. Cells align with tension, and the
-network alone misreads the orientation of some geometries (docs/surrogate.md, "A mechanical
+network alone misreads the orientation of some geometries (experiments/surrogate/README.md, "A mechanical
 prior"). Both channels are even under the mirrors and swapped by the transpose. Input kind
 `mechanics_shear` adds sigma_xy (`spring_stress(..., shear=True)`), which says how the
 principal axes tilt: odd under each mirror, unchanged by the transpose.

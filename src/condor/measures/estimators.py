@@ -15,7 +15,7 @@ Shapes: a method's answers are (M, ...) for M moulds; replicas are (M, R, ...) w
 Moulds may hold different numbers of replicas: the array is then padded to the largest R with
 NaN (a missing replica is NaN in every element, after the mould's own), and each mould's
 noise term uses its own count R_i (a tether-free test mould takes more replicas than the
-others: docs/surrogate.md, "Tether-free test moulds").
+others: experiments/surrogate/README.md, "Tether-free test moulds").
 Every figure has a bootstrap interval over moulds (`bootstrap_interval`); a whole-mould
 statistic's Pearson r is taken against the expected statistic in the same way (the replica
 mean's noise removed from its variance, `expected_r`) and comes with its n, its interval and

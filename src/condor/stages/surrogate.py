@@ -22,7 +22,7 @@ import pandas as pd
 
 from condor.config import check_device
 from condor.model.scenes import same_length
-from condor.plots import evaluation_figures, learning_curves
+from condor.plots import evaluation_figures
 from condor.data.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.evaluate import combine_summaries
@@ -144,11 +144,3 @@ def summarise(summary_csvs, out_csv) -> pd.DataFrame:
     table = combine_summaries(summary_csvs)
     table.to_csv(out_csv)
     return table
-
-
-def learning_curves_figure(tables: dict, out_png) -> Path:
-    """The learning curves measured by benchmarks/bench_surrogate_curves.py (the committed
-    tables docs/data/surrogate_curve_<name>.csv, `tables`: name or "<name>_curve" -> path, the
-    workflow's input names) drawn for the report."""
-    return learning_curves({name.removesuffix("_curve"): pd.read_csv(path)
-                            for name, path in tables.items()}, out_png)

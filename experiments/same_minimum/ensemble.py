@@ -20,7 +20,7 @@ distance (its noise correction assumes independent ensembles).
 Runs are cached one file per run under --out (results/benchmarks/solver_ensemble), so an
 interrupted study resumes and other solvers can be added later.
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_solver_ensemble.py --scene paper \
+    OPENBLAS_NUM_THREADS=1 python experiments/same_minimum/ensemble.py --scene paper \
         --moulds 8 --replicas 3 --solvers hybrid:1e-4 lbfgs:3e-4 lbfgs:1e-3
 """
 
@@ -32,6 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
+from condor.config import Config
 from condor.measures import estimators
 from condor.data.fields import normalise
 from condor.data.moulds import generate_mould
@@ -118,7 +119,7 @@ def _nanmax(values) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="paper")
-    parser.add_argument("--seed", type=int, default=2026, help="dataset seed of the moulds")
+    parser.add_argument("--seed", type=int, default=Config.default().seed, help="dataset seed of the moulds")
     parser.add_argument("--moulds", type=int, default=8)
     parser.add_argument("--replicas", type=int, default=3)
     parser.add_argument("--solvers", nargs="+", default=["hybrid:1e-4", "lbfgs:"],

@@ -19,7 +19,7 @@ Variants (--variants, any of):
   fire2           FIRE 2.0 (Guenole et al. 2020: delayed dt growth, half step back on uphill,
                   mixing after the Euler update) with the exact walls of condor.model.walls
 
-    OPENBLAS_NUM_THREADS=1 python benchmarks/bench_solver_variants.py --scene default \
+    OPENBLAS_NUM_THREADS=1 python experiments/same_minimum/variants.py --scene default \
         --moulds 8 --replicas 2 --variants lbfgs lbfgs-plain fire2
 """
 
@@ -34,6 +34,7 @@ from pathlib import Path
 import numba
 import numpy as np
 
+from condor.config import Config
 from condor.model.anneal import anneal
 from condor.model.energy import DELTA, random_orientations
 from condor.model.lattice import build_lattice
@@ -197,7 +198,7 @@ def run_variant(name, lattice, ori, seed, ftol):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--scene", default="default")
-    parser.add_argument("--seed", type=int, default=2026)
+    parser.add_argument("--seed", type=int, default=Config.default().seed)
     parser.add_argument("--first-mould", type=int, default=0)
     parser.add_argument("--moulds", type=int, default=8)
     parser.add_argument("--replicas", type=int, default=2)

@@ -4,7 +4,7 @@ For each mould, ensembles of replicas of
   * the paper's anneal at rising budgets (moves per cell; the paper's is 1e6), each followed by
     tight FIRE (`--ftol`, default 1e-5), so that every rung ends at a minimum, and
   * the quench: solver "hybrid" with its defaults (a short anneal, then FIRE), the name the
-    stored tables in docs/data give it. It was the simulator's default when the ladder was
+    stored tables in this folder give it. It was the simulator's default when the ladder was
     measured; the default is now `condor.model.simulate.DEFAULT_SOLVER` ("lbfgs"), which samples
     the hybrid's ensemble (docs/model.md, "The same minimum?"),
 with the store's replica seeds (`condor.data.seeds.replica_seed`): replica r of every method
@@ -15,7 +15,7 @@ ensemble's mean (`estimators.noise_ceiling`), both as RMS over pixels and the 8 
 exact permutation test (the replicas of two ensembles pooled and re-split) says whether the
 distance is resolved beyond replica noise.
 
-Outputs (small CSVs under --out, default docs/data; the suffix is the scene and --tag):
+Outputs (small CSVs under --out, default this folder; the suffix is the scene and --tag):
   anneal_ladder_runs_<scene>.csv     one row per run: energies, diagnostics, seeds
   anneal_ladder_<scene>.csv          per mould and method: E/cell, distances, spreads, p
   anneal_ladder_fields_<scene>.csv   per field: distance of each method to the reference rung
@@ -24,11 +24,11 @@ Runs are cached under --cache (one .npz each), so an interrupted ladder resumes 
 are rebuilt from whatever has finished (--tables-only).
 
 Run (single-threaded, niced; the long rungs take minutes per run):
-  python benchmarks/bench_anneal_ladder.py --scene tiny --moulds 7 12 15 47 \
+  python experiments/anneal_ladder/run.py --scene tiny --moulds 7 12 15 47 \
       --rungs 1e3 1e4 1e5 1e6 --seeds 3 --hybrid-seeds 8
-  python benchmarks/bench_anneal_ladder.py --scene default --moulds 7 12 15 47 \
+  python experiments/anneal_ladder/run.py --scene default --moulds 7 12 15 47 \
       --rungs 1e3 1e4 1e5 --seeds 3 --hybrid-seeds 8
-  python benchmarks/bench_anneal_ladder.py --scene default --trace 12 1e5
+  python experiments/anneal_ladder/run.py --scene default --trace 12 1e5
 The anneal before its step-amplitude clamp (commit a70ce9e's parent) is measured by putting
 that commit's src first on PYTHONPATH and passing --tag legacy.
 """
@@ -50,6 +50,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from condor.config import Config  # noqa: E402
 from condor.model import anneal as anneal_mod  # noqa: E402
 from condor.model.energy import DELTA, cell_tension, lattice_energy, random_orientations  # noqa: E402
 from condor.measures.estimators import (  # noqa: E402
@@ -63,7 +64,7 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import SimResult, diagnose, simulate, simulate_lattice, warm_up  # noqa: E402
 
-DATASET_SEED = 2026  # the default config's global seed: moulds 7, 12, 15, 47 are test moulds
+DATASET_SEED = Config.default().seed  # the default config's global seed (--seed changes it)
 HYBRID = "hybrid"
 P_RESOLVED = 0.05  # a distance is resolved beyond replica noise below this permutation p
 
@@ -473,7 +474,7 @@ def main():
                     help="the rung standing for the paper's anneal (default: the largest)")
     ap.add_argument("--tag", default="", help="suffix of the outputs (e.g. legacy)")
     ap.add_argument("--cache", type=Path, default=Path("results/benchmarks/anneal_ladder"))
-    ap.add_argument("--out", type=Path, default=Path("docs/data"))
+    ap.add_argument("--out", type=Path, default=Path(__file__).resolve().parent)
     ap.add_argument("--tables-only", action="store_true", help="no new runs: tables from cache")
     ap.add_argument("--trace", nargs=2, metavar=("MOULD", "BUDGET"), default=None,
                     help="trace one anneal at checkpoints instead of the ladder")

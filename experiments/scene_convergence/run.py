@@ -4,7 +4,7 @@ results/benchmarks/scene_convergence.csv and .png.
 
 Quick: 1 mould, depths 2/3/4 l0, the default box and the paper box (the same mould at twice
 the scale), 3 seeds each. Full: 3 moulds, depths 1.5/2/3/4.
-Run: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_scene_convergence.py [--quick] [--jobs 2]
+Run: OPENBLAS_NUM_THREADS=1 python experiments/scene_convergence/run.py [--quick] [--jobs 2]
 """
 
 import argparse
@@ -17,6 +17,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 import pandas as pd  # noqa: E402
 
+from condor.config import Config  # noqa: E402
 from condor import plots  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
@@ -29,7 +30,7 @@ SCENE = get_scene("default")
 
 def one_mould(args) -> pd.DataFrame:
     mould_id, depths, seeds = args
-    return convergence(SCENE, [make_mould(SCENE, 2026, mould_id)], seeds, depths, (1.0, 2.0),
+    return convergence(SCENE, [make_mould(SCENE, Config.default().seed, mould_id)], seeds, depths, (1.0, 2.0),
                        log=lambda s: print(s, flush=True))
 
 

@@ -1,19 +1,19 @@
 """Learning curves of the surrogate against the expected fields: test error against the number
 of training moulds, the model size and the epochs; writes the small tables docs/surrogate.md
-shows (docs/data/surrogate_curve_*.csv) from the rows of bench_surrogate_study.py.
+shows (experiments/surrogate/surrogate_curve_*.csv) from the rows of experiments/surrogate/study.py.
 
-    # the runs (each appends to DIR/results.csv; see --help of bench_surrogate_study.py)
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run data --out DIR \\
+    # the runs (each appends to DIR/results.csv; see --help of experiments/surrogate/study.py)
+    PYTHONPATH=src python experiments/surrogate/curves.py run data --out DIR \\
         --store BIG_STORE --val-store DEFAULT_STORE --replicas REPLICAS.npz
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py run size --out DIR ...
+    PYTHONPATH=src python experiments/surrogate/curves.py run size --out DIR ...
     # the three curves from three kinds of run: the data curve's default-sized run also gives
     # the epoch curve (--epochs-at) and the size curve's base-32 point (--n-train 194)
     ... run data --sizes 194 --epochs-at 30 60 120 180 --store BIG_STORE --val-store ...
     ... run size --bases 16 48 --n-train 194 --store BIG_STORE --val-store ...
     # the tables
-    PYTHONPATH=src python benchmarks/bench_surrogate_curves.py tables --out DIR --docs docs/data
+    PYTHONPATH=src python experiments/surrogate/curves.py tables --out DIR [--docs experiments/surrogate]
 
-Curves share the default's settings (the `unet` preset, condor.surrogate.variants) and change one thing:
+Curves share the default's settings (config/config.yaml, variant `unet`) and change one thing:
 - data: the first n training moulds of BIG_STORE (built by the workflow with
   `--config n_moulds=960`: the same seed gives the same first moulds), n in --sizes, each
   trained for the same number of optimiser steps as the default (epochs = default epochs x
@@ -37,8 +37,10 @@ from pathlib import Path
 
 import pandas as pd
 
+from condor.config import Config
+from condor.plots import learning_curves
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 DEFAULT_TRAIN_MOULDS = 194  # the default store's training split (240 moulds, 24 test, 22 val)
 COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms", "field_rms_lo",
            "field_rms_hi", "ceiling_rms", "error_over_ceiling", "error_over_ceiling_lo",
@@ -49,15 +51,12 @@ COLUMNS = ["n_train", "epochs", "parameters", "train_seconds_total", "field_rms"
 
 
 def default_settings(variant: str = "unet") -> dict:
-    # the registry's preset (condor.surrogate.variants.PRESETS) as plain (JSON-safe) values, as
-    # bench_surrogate_study.py --settings takes them
-    from condor.surrogate.variants import resolve
-
-    return json.loads(json.dumps(resolve(variant)))
+    # to_dict: plain (JSON-safe) values, as experiments/surrogate/study.py --settings takes them
+    return Config.load(REPO / "config" / "config.yaml").to_dict()["surrogate"]["models"][variant]
 
 
 def study(name, settings, args, store, extra=()):
-    cmd = [sys.executable, str(REPO / "benchmarks" / "bench_surrogate_study.py"), name,
+    cmd = [sys.executable, str(Path(__file__).resolve().with_name("study.py")), name,
            "--settings", json.dumps(settings), "--store", store, "--replicas", args.replicas,
            "--out", args.out, "--threads", str(args.threads), *extra]
     if args.val_store:
@@ -108,6 +107,9 @@ def tables(args) -> None:
                        if c in frame.columns]]
         table.to_csv(docs / f"surrogate_curve_{curve}.csv", index=False, float_format="%.4g")
         print(f"{curve}:\n{table.to_string(index=False)}\n")
+    drawn = {curve: frame for curve, frame in picks.items() if not frame.empty}
+    if drawn:
+        print(learning_curves(drawn, docs / "learning_curves.png"))
 
 
 def main() -> None:
@@ -129,7 +131,7 @@ def main() -> None:
                    help="size curve: train on the first N training moulds of --store")
     t = sub.add_parser("tables")
     t.add_argument("--out", required=True)
-    t.add_argument("--docs", default=str(REPO / "docs" / "data"))
+    t.add_argument("--docs", default=str(Path(__file__).resolve().parent))
     args = ap.parse_args()
     run(args) if args.command == "run" else tables(args)
 

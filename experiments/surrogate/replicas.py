@@ -7,15 +7,15 @@ budget unless --solver names another. Writes an .npz with `mould_ids` (M,), `fie
 (M, R) total energies. Resumable: finished moulds are kept in a per-mould cache beside the
 output.
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --replicas 8 \
-        --out /work/data/surrogate/replicas.npz
+    PYTHONPATH=src python experiments/surrogate/replicas.py --store S --replicas 8 \
+        --out DATA/replicas.npz
 
 A store built with `simulation.replicas.test` > 1 (the default config: 8) already holds its
 test moulds' replicas: `--from-store` copies them into the same .npz, simulating nothing
 (every replica of the split's replicated moulds, replica 0 first; each sample's seed is
 checked against condor.data.seeds.replica_seed):
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_replicas.py --store S --from-store \
+    PYTHONPATH=src python experiments/surrogate/replicas.py --store S --from-store \
         --out replicas.npz
 """
 

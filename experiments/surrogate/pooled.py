@@ -13,9 +13,9 @@ over moulds, with its interval) and the spread map's calibration. Each statistic
 on the tethered moulds alone (subset `tethered`): the tether-free moulds are few and the
 surrogate's largest errors.
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_pooled.py train --store STORE \\
+    PYTHONPATH=src python experiments/surrogate/pooled.py train --store STORE \\
         --out DIR/NAME.pt [--n-train N] [--extra-train STORE ...] [--settings JSON] [--threads 2]
-    PYTHONPATH=src python benchmarks/bench_surrogate_pooled.py score --test STORE [STORE ...] \\
+    PYTHONPATH=src python experiments/surrogate/pooled.py score --test STORE [STORE ...] \\
         --out CSV DIR/NAME.pt [DIR/NAME.pt ...]
 
 Every store must share the scene (moulds with fewer replicas are NaN-padded, as in the
@@ -29,13 +29,11 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import torch
-import xarray as xr
 
 import condor
 from condor.measures import estimators as est
@@ -43,13 +41,15 @@ from condor.data.fields import STATISTICS
 from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
 from condor.studies.reference import reference_ensemble
+from condor.studies.scoring import (first_training_moulds, paired_ratio, pooled_ensemble,
+                                    with_training_moulds)
 from condor.surrogate.checkpoint import load_checkpoint
 from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import resolve, train_config
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 
 
@@ -63,48 +63,12 @@ def run_training(args) -> None:
     for store in args.extra_train:
         ds = with_training_moulds(ds, condor.open_dataset(store))
     if args.n_train is not None:
-        split = ds["split"].values.astype("<U8").copy()
-        split[usable_samples(ds, "train")[args.n_train:]] = "unused"
-        ds = ds.assign(split=("sample", split))
+        ds = first_training_moulds(ds, args.n_train)
     print(f"{len(usable_samples(ds, 'train'))} training moulds; settings {settings}", flush=True)
     start = time.perf_counter()
     train(ds, train_config(settings, int(ds.sizes["x"])), args.out,
           log=lambda line: print("   ", line, flush=True))
     print(f"trained in {time.perf_counter() - start:.0f} s (wall)")
-
-
-def with_training_moulds(ds, extra):
-    """`ds` with the usable training moulds of another store of the same scene appended as
-    training samples (renumbered after ds's; the per-mould replica tables dropped)."""
-    if extra.attrs.get("data_config", {}).get("scene") != ds.attrs.get("data_config", {}).get("scene"):
-        raise SystemExit("the extra training store has another scene")
-    extra = extra.isel(sample=usable_samples(extra, "train")).load()  # its training moulds only
-    extra = extra.assign_coords(sample=extra["sample"].values + int(ds["sample"].max()) + 1)
-    keep = [name for name in ds.data_vars if ds[name].dims[:1] == ("sample",)]
-    joined = xr.concat([ds[keep], extra[keep]], dim="sample", data_vars="all",
-                       coords="minimal", compat="override", join="override")
-    joined.attrs = ds.attrs
-    return joined
-
-
-def pooled_ensemble(stores):
-    """One Ensemble of every store's replicated test moulds (moulds renumbered 0..M-1)."""
-    parts = [reference_ensemble(store) for store in stores]
-    if len({e.pixel_size for e in parts}) != 1:
-        raise SystemExit("the stores differ in their pixel size")
-    most = max(e.n_replicas for e in parts)
-
-    def joined(name):
-        arrays = [getattr(e, name) for e in parts]
-        if name in ("raw", "seconds", "energy_per_cell"):  # NaN-padded to the most replicas
-            arrays = [np.pad(a, [(0, 0), (0, most - a.shape[1])] + [(0, 0)] * (a.ndim - 2),
-                             constant_values=np.nan) for a in arrays]
-        return np.concatenate(arrays)
-
-    return replace(parts[0], moulds=np.arange(sum(len(e.moulds) for e in parts)),
-                   raw=joined("raw"), n_cells=joined("n_cells"), inputs=joined("inputs"),
-                   seconds=joined("seconds"), energy_per_cell=joined("energy_per_cell"),
-                   lattice=joined("lattice"))
 
 
 def predictions(checkpoint: str, ensemble, key: str) -> tuple[np.ndarray, np.ndarray]:
@@ -163,7 +127,7 @@ def score_rows(name: str, raw, spread, ensemble, replica_stats) -> list[dict]:
 
 def run_scoring(args) -> None:
     torch.set_num_threads(args.threads)
-    ensemble = pooled_ensemble(args.test)
+    ensemble = pooled_ensemble([reference_ensemble(store) for store in args.test])
     replica_stats = accuracy_study.replica_statistics(ensemble)
     key = "|".join(str(Path(s).resolve()) for s in args.test)
     print(f"{len(ensemble.moulds)} moulds x {ensemble.describe_replicas()}", flush=True)
@@ -176,10 +140,9 @@ def run_scoring(args) -> None:
             normalise_predicted(raw).astype(np.float64), ensemble.normalised).corrected
     reference = rows[0]["name"]
     for row in rows:  # the field error against the first checkpoint's, paired over moulds
-        pairs = np.stack([errors[row["name"]], errors[reference]], axis=1)
         row["reference"] = reference
-        row["ratio"], row["ratio_lo"], row["ratio_hi"] = est.bootstrap_interval(
-            pairs, lambda p: np.sqrt(max(p[:, 0].mean(), 0.0) / p[:, 1].mean()))
+        row["ratio"], row["ratio_lo"], row["ratio_hi"] = paired_ratio(errors[reference],
+                                                                      errors[row["name"]])
     table = pd.DataFrame(rows)
     if args.out:
         Path(args.out).parent.mkdir(parents=True, exist_ok=True)

@@ -3,9 +3,9 @@ coverage, the lattice channels (condor.data.inputs), or the lattice channels est
 masks; the default variant otherwise, trained on the same moulds, scored against the expected
 fields of the replica moulds, paired against the first kind (docs/surrogate.md "The inputs").
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_inputs.py KIND --store STORE \\
+    PYTHONPATH=src python experiments/surrogate/inputs.py KIND --store STORE \\
         --moulds RESULTS/moulds --replicas REPLICAS.npz --out DIR [--settings JSON]
-    PYTHONPATH=src python benchmarks/bench_surrogate_inputs.py table --replicas REPLICAS.npz \\
+    PYTHONPATH=src python experiments/surrogate/inputs.py table --replicas REPLICAS.npz \\
         --out DIR mask coverage lattice estimated
 
 KIND is mask | coverage | lattice | estimated | both (masks and lattice channels, 4 input
@@ -15,33 +15,38 @@ of the masks, so every kind runs the same code. Each run writes DIR/KIND.pt and
 DIR/KIND_pred.npz (raw predictions of the replica moulds); `table` prints and writes
 DIR/inputs_paired.csv (field error ratios against the first kind, bench_surrogate_paired's
 estimator) and DIR/inputs.csv (bench_surrogate_study's figures for every kind).
-Replicas come from benchmarks/bench_surrogate_replicas.py --from-store.
+Replicas come from experiments/surrogate/replicas.py --from-store.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import torch
+from study import (
+    evaluate_checkpoint,  # experiments/surrogate/study.py: Python puts a script's folder on its path
+)
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sibling benchmarks it builds on
-from bench_surrogate_paired import field_errors, paired_rows, predict_replica_moulds  # noqa: E402
-from bench_surrogate_study import evaluate_checkpoint, study_dataset  # noqa: E402
-from condor.data import inputs as model_inputs  # noqa: E402
-from condor.data.moulds import input_channels  # noqa: E402
-from condor.stages.dataset import load_moulds  # noqa: E402
-from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
-from condor.surrogate.train import train  # noqa: E402
-from condor.surrogate.variants import train_config  # noqa: E402
+from condor.data import inputs as model_inputs
+from condor.data.reader import open_dataset
+from condor.data.moulds import input_channels
+from condor.stages.dataset import load_moulds
+from condor.studies.scoring import (
+    field_errors,
+    paired_rows,
+    predict_replica_moulds,
+    study_dataset,
+)
+from condor.surrogate.samples import FIELD_NAMES, dataset_pixel_size
+from condor.surrogate.train import train
+from condor.surrogate.variants import train_config
 
 KINDS = ("mask", "coverage", "lattice", "estimated", "both", "mechanics", "mechanics_shear")
-# the recipe of the inputs study, as it ran (the default of its day, not today's `unet` preset:
-# condor.surrogate.variants.PRESETS), but for `inputs`
+# the workflow default's settings (config/config.yaml, variant unet) but for `inputs`
 DEFAULT = {"model": "unet", "head": "physics", "loss": "gaussian", "upsample": "bilinear",
            "detach_spread": True, "base": 32, "n_dropout": 0, "epochs": 120,
            "lr_schedule": "cosine", "batch_size": 8, "lr": 0.002, "augment": True,
@@ -73,7 +78,7 @@ def inputs_of_kind(ds, kind: str, moulds_dir: str | None):
 
 def run(args) -> None:
     data = np.load(args.replicas)
-    ds = inputs_of_kind(study_dataset(args.store, data["mould_ids"], None), args.kind,
+    ds = inputs_of_kind(study_dataset(open_dataset(args.store), data["mould_ids"]), args.kind,
                         args.moulds)
     settings = {**DEFAULT, **json.loads(args.settings or "{}"), "num_threads": args.threads,
                 "inputs": args.kind if args.kind in READ_AS_IS else "lattice"}
@@ -94,7 +99,7 @@ def table(args) -> None:
     out = Path(args.out)
     errors = [field_errors(np.load(out / f"{k}_pred.npz")["raw"].astype(np.float64), replicas)
               for k in args.kinds]
-    paired = paired_rows(list(args.kinds), errors)
+    paired = paired_rows(list(args.kinds), errors, FIELD_NAMES)
     paired.to_csv(out / "inputs_paired.csv", index=False)
     figures = pd.concat([pd.read_csv(out / f"{k}.csv") for k in args.kinds], ignore_index=True)
     figures.to_csv(out / "inputs.csv", index=False)

@@ -6,7 +6,7 @@ of the replica-mean fields) and the one-row summary: Spearman rho and bias with 
 intervals, the replicas' own rank-correlation ceiling, the best confirmed design against the
 best test mould. --out writes the tables as CSV and the confirmed designs as a gallery.
 
-    python benchmarks/bench_design_loop.py --checkpoint model.pt --store results/dataset.zarr \
+    python experiments/design_loop/run.py --checkpoint model.pt --store results/dataset.zarr \
         --objective alignment:x --budget 2000 --n-top 5 --n-random 10 --replicas 2 --seed 0
 """
 

@@ -8,7 +8,7 @@ every replica as a sample ("all", 1/R of the epochs) and the replicas' mean as t
 ("mean"), then scores each on the test moulds against their expected fields
 (condor.studies.accuracy: noise-corrected field error with its interval, the bias of the
 whole-mould statistics) and the calibration of the predicted spread (90% and 50% coverage).
-Run: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_train_replicas.py --store STORE
+Run: OPENBLAS_NUM_THREADS=1 python experiments/surrogate/train_replicas.py --store STORE
          [--epochs 120] [--base 8] [--seeds 0 1]
 """
 

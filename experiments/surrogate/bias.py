@@ -1,7 +1,7 @@
 """How well 24 test moulds resolve a whole-mould statistic's bias, and whether a correction
 fitted on the val split removes it (docs/surrogate.md "In the default run").
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_bias.py --store STORE \\
+    PYTHONPATH=src python experiments/surrogate/bias.py --store STORE \\
         --replicas REPLICAS.npz CHECKPOINT [CHECKPOINT ...] [--out CSV]
 
 Per checkpoint and statistic: r and bias (median of predicted / replica mean - 1) against the
@@ -11,24 +11,21 @@ normal approximation); the slope of log(replica mean) on log(predicted) (above 1
 predictions are shrunk towards the average); and two corrections fitted on the val split's
 moulds (one simulation each) then applied to the test moulds: a gain 1 / (1 + val bias), and
 log(true) = a + b log(predicted) by least absolute deviations. Replicas come from
-benchmarks/bench_surrogate_replicas.py --from-store.
+experiments/surrogate/replicas.py --from-store.
 """
 
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))  # the sibling benchmarks it builds on
-from bench_surrogate_paired import predict_replica_moulds  # noqa: E402
-from bench_surrogate_study import statistics_of, study_dataset  # noqa: E402
-from condor.measures.estimators import statistic_agreement  # noqa: E402
-from condor.data.fields import STATISTICS  # noqa: E402
-from condor.surrogate.samples import dataset_pixel_size  # noqa: E402
+from condor.data.reader import open_dataset
+from condor.measures.estimators import statistic_agreement
+from condor.data.fields import STATISTICS
+from condor.studies.scoring import predict_replica_moulds, statistics_of, study_dataset
+from condor.surrogate.samples import dataset_pixel_size
 
 CHECKED = ("n_P_gt_0.2", "mean_T", "mean_Sx2", "mean_Sy2")
 MAD_TO_SD = 1.4826  # a normal's standard deviation over its median absolute deviation
@@ -85,7 +82,7 @@ def main() -> None:
     ap.add_argument("--out", help="CSV of the rows")
     args = ap.parse_args()
     data = np.load(args.replicas)
-    ds = study_dataset(args.store, data["mould_ids"], None)
+    ds = study_dataset(open_dataset(args.store), data["mould_ids"])
     pixel = dataset_pixel_size(ds)
     replica_stats = statistics_of(data["fields"].astype(np.float64), pixel)
     first = np.asarray(ds["replica"].values) == 0

@@ -1,7 +1,7 @@
 """Train surrogate variants and measure them against the expected fields (replica means): the
 cause study, the learning curves and the default's accuracy in docs/surrogate.md.
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_study.py NAME --settings '{"model": ...}' \\
+    PYTHONPATH=src python experiments/surrogate/study.py NAME --settings '{"model": ...}' \\
         --store STORE --replicas REPLICAS.npz --out DIR [--n-train N] [--epochs-at 30 60]
         [--modes eval batch_stats] [--no-symmetrise-too] [--val-store DEFAULT_STORE]
 
@@ -13,7 +13,7 @@ the field error against the expected fields and the single-simulation ceiling (R
 pixels, noise-corrected, bootstrap intervals over moulds), the spread's calibration
 (condor.surrogate.calibration) and the checkerboard amplitude. `--epochs-at` also evaluates
 copies of the checkpoint taken at those epochs (a curve against epochs from one run).
-Replicas come from benchmarks/bench_surrogate_replicas.py.
+Replicas come from experiments/surrogate/replicas.py.
 """
 
 from __future__ import annotations
@@ -32,7 +32,8 @@ import torch
 from condor.data.reader import open_dataset
 from condor.measures.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
                                root_mean, statistic_agreement)
-from condor.data.fields import mould_statistics
+from condor.data.fields import STATISTICS
+from condor.studies.scoring import statistics_of, study_dataset
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)
 from condor.surrogate.checkpoint import load_checkpoint
@@ -41,45 +42,12 @@ from condor.surrogate.predict import Predictor
 from condor.surrogate.train import train
 from condor.surrogate.variants import train_config
 
-STATISTICS = ("mean_P", "n_P_gt_0.2", "mean_T", "mean_T_norm", "mean_Sx2", "mean_Sx2_norm",
-              "mean_Sy2", "mean_Sy2_norm")
-
-
-def study_dataset(store, replica_ids, n_train: int | None, val_ids=None):
-    """The store with splits relabelled by mould (every replica of a mould takes its label):
-    test = the replica moulds, val = `val_ids` (default: the store's own val split), train =
-    the store's other moulds whose replica 0 is usable (the first n_train by id); everything
-    else "unused"."""
-    ds = open_dataset(store)
-    mould = np.asarray(ds["mould"].values)
-    first = np.asarray(ds["replica"].values) == 0  # sample == mould for these
-    split = np.asarray(ds["split"].values).astype(str)
-    status = np.asarray(ds["status"].values).astype(str)
-    val = np.isin(mould, val_ids) if val_ids is not None else split == "val"
-    test = np.isin(mould, replica_ids)
-    pool = mould[first & (status == "ok") & ~val & ~test]
-    if n_train is not None:
-        if n_train > len(pool):
-            raise ValueError(f"--n-train {n_train} > {len(pool)} usable training moulds")
-        pool = pool[:n_train]
-    labels = np.full(len(mould), "unused", dtype="<U8")
-    labels[np.isin(mould, pool)], labels[val], labels[test] = "train", "val", "test"
-    return ds.assign(split=("sample", labels))
-
-
 def _test_ids(store) -> np.ndarray:
     """The test split's mould ids (the replica moulds, before the replicas exist)."""
     ds = open_dataset(store)
     test = (np.asarray(ds["split"].values).astype(str) == "test") & \
         (np.asarray(ds["replica"].values) == 0)
     return np.asarray(ds["mould"].values)[test]
-
-
-def statistics_of(fields, pixel_size) -> np.ndarray:
-    """(..., 8, H, W) -> (..., n_statistics), N_c = each field set's own density sum."""
-    flat = fields.reshape(-1, *fields.shape[-3:])
-    rows = [[mould_statistics(f, pixel_size)[k] for k in STATISTICS] for f in flat]
-    return np.asarray(rows).reshape(*fields.shape[:-3], len(STATISTICS))
 
 
 def measure(prediction, spread, replicas, inputs, pixel_size, scale) -> dict:
@@ -203,7 +171,7 @@ def main() -> None:
     if args.val_store:
         vds = open_dataset(args.val_store)
         val_ids = np.asarray(vds["mould"].values)[usable_samples(vds, "val")]
-    ds = study_dataset(args.store, replica_ids, args.n_train, val_ids)
+    ds = study_dataset(open_dataset(args.store), replica_ids, args.n_train, val_ids)
     settings = {**json.loads(args.settings), "num_threads": args.threads}
     cfg = train_config(settings, int(ds.sizes["x"]))
     checkpoint = out / f"{args.name}.pt"

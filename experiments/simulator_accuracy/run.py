@@ -6,7 +6,7 @@ For moulds 0..n-1 of `generate_mould(seed, id, scene.box)`: R replicas with the 
 condor.studies.accuracy: field error against the expected fields with the noise removed,
 interval, the single-simulation ceiling. Writes results/benchmarks/accuracy_<scene>.csv and
 the chart; prints the table.
-Run: OPENBLAS_NUM_THREADS=1 python benchmarks/bench_accuracy.py --scene default --moulds 8 \\
+Run: OPENBLAS_NUM_THREADS=1 python experiments/simulator_accuracy/run.py --scene default --moulds 8 \\
          --replicas 4 [--reference-budget 1e4] [--jobs 2]
 """
 
@@ -21,6 +21,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from condor.config import Config  # noqa: E402
 from condor import plots  # noqa: E402
 from condor.data.fields import cell_fields  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
@@ -52,7 +53,7 @@ def one_mould(args):
 def main():
     ap = argparse.ArgumentParser()
     ap.add_argument("--scene", default="default")
-    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--seed", type=int, default=Config.default().seed)
     ap.add_argument("--moulds", type=int, default=8)
     ap.add_argument("--replicas", type=int, default=4)
     ap.add_argument("--reference-budget", type=float, default=1e4)

@@ -1,6 +1,6 @@
 """Figures of docs/surrogate.md from the study's checkpoints and the replicas.
 
-    PYTHONPATH=src python benchmarks/bench_surrogate_figures.py --store S --replicas R.npz \\
+    PYTHONPATH=src python experiments/surrogate/figures.py --store S --replicas R.npz \\
         --results DIR/results.csv --checkpoints A.pt B.pt --labels A B --out docs/figures
 
 - surrogate_bias.png: per cause-study run, the bias of each whole-mould statistic against the

@@ -12,7 +12,7 @@ threads). Its result after the same number of epochs is printed too.
 Test moulds: the store's "test" split when it has at least --min-test usable ones, else the
 last --min-test usable moulds not used for training (the benchmark says which).
 
-    python benchmarks/bench_surrogate_compare.py --store results/dataset.zarr \\
+    python experiments/surrogate/compare.py --store results/dataset.zarr \\
         [--n-train 48] [--paper-epochs 1] [--threads 2] [--repeats 9]
 """
 
@@ -34,7 +34,7 @@ from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train
 from condor.surrogate.variants import train_config, workflow_variants
 
-REPO = Path(__file__).resolve().parents[1]
+REPO = Path(__file__).resolve().parents[2]
 
 
 def benchmark_split(ds, n_train: int, min_test: int):

@@ -1,0 +1,83 @@
+"""Findings measured outside the workflow, shipped as data with their provenance.
+
+`findings.json` names each finding: the question it answers, its numbers (a small table in
+this folder, or `values` with the sentence they fill), the experiment folder that measured it
+(experiments/<name>/, its script, data and README) and the commit it ran at. The report reads
+them from here; nothing in the library states a measured number as prose.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pandas as pd
+
+HERE = Path(__file__).resolve().parent
+
+
+@dataclass(frozen=True)
+class Finding:
+    """One finding: `key`, the question, where it was measured (experiment folder, source
+    table, commit), and its numbers (`values`, or `table` in this folder)."""
+
+    key: str
+    question: str
+    experiment: str
+    source: str
+    commit: str
+    statement: str = ""
+    values: dict = field(default_factory=dict)
+    table: str = ""
+
+    @property
+    def provenance(self) -> str:
+        return f"{self.experiment} at {self.commit}; {self.source}"
+
+    def frame(self) -> pd.DataFrame:
+        """The finding's table (ValueError when it has none)."""
+        if not self.table:
+            raise ValueError(f"finding {self.key!r} has no table")
+        return pd.read_csv(HERE / self.table)
+
+    def sentence(self) -> str:
+        """The statement with its values filled in, and its provenance."""
+        if not self.statement:
+            raise ValueError(f"finding {self.key!r} has no statement")
+        return f"{self.statement.format(**self.values)} ({self.provenance})"
+
+
+def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
+    """Every finding of `path` by key; ValueError naming a finding that lacks its provenance
+    or whose table is missing."""
+    raw = json.loads(Path(path).read_text())
+    findings = {}
+    for key, entry in raw.items():
+        missing = [k for k in ("question", "experiment", "source", "commit") if not entry.get(k)]
+        if missing:
+            raise ValueError(f"finding {key!r} lacks {missing}")
+        if not entry.get("table") and not entry.get("statement"):
+            raise ValueError(f"finding {key!r} has neither a table nor a statement")
+        if entry.get("table") and not (Path(path).parent / entry["table"]).is_file():
+            raise ValueError(f"finding {key!r}: no table {entry['table']!r}")
+        findings[key] = Finding(key=key, **entry)
+    return findings
+
+
+def more_moulds_sentence(finding: Finding) -> str:
+    """What the training-set study found for the orientation statistics, from its table: the
+    orientation r of the default recipe, of more training moulds at the same epochs, and of
+    longer training on the same moulds."""
+    t = finding.frame().set_index("name")
+    base = t[(t["n_train"] == t["n_train"].min()) & (t["epochs"] == t["epochs"].min())].iloc[0]
+    more = t[(t["n_train"] == t["n_train"].max()) & (t["epochs"] == base["epochs"])].iloc[0]
+    longer = t[(t["n_train"] == base["n_train"]) & (t["epochs"] == t["epochs"].max())].iloc[0]
+    words = (f"Measured outside this run on {int(base['n_moulds'])} pooled test moulds, the "
+             f"orientation r (mean Sx2 / Sy2) rises with more training moulds "
+             f"({int(base['n_train']):,} -> {int(more['n_train']):,} at {int(base['epochs'])} "
+             f"epochs: {base['mean_Sx2:r']:.3f} / {base['mean_Sy2:r']:.3f} -> "
+             f"{more['mean_Sx2:r']:.3f} / {more['mean_Sy2:r']:.3f}) and not with longer "
+             f"training ({int(longer['epochs'])} epochs: {longer['mean_Sx2:r']:.3f} / "
+             f"{longer['mean_Sy2:r']:.3f})")
+    return f"{words} ({finding.provenance})."
