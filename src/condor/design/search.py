@@ -343,19 +343,25 @@ def objective_spread(objective: Objective, normalised: np.ndarray, spread: np.nd
     pixels further apart than the kernel. The map gives no correlations beyond that, so this
     is an approximation; the confirmation's replica spread (simulated_objective_std) checks it.
     """
+    values = [objective.evaluate(draw)["objective"].to_numpy()
+              for draw in spread_draws(normalised, spread, sigma_px, draws, seed)]
+    return np.std(np.array(values), axis=0, ddof=1)
+
+
+def spread_draws(fields: np.ndarray, spread: np.ndarray, sigma_px: float, draws: int = 64,
+                 seed: int = 0):
+    """`draws` fields like one simulation's, as objective_spread draws them: fields + spread
+    * z, z a unit-variance Gaussian noise smoothed by the fields' kernel (sigma_px)."""
     from condor.surrogate.baselines import gaussian_blur, gaussian_matrix
 
-    normalised = np.asarray(normalised, dtype=np.float64)
+    fields = np.asarray(fields, dtype=np.float64)
     spread = np.asarray(spread, dtype=np.float64)
     rng = np.random.default_rng([int(seed), 3])
-    n = normalised.shape[-1]
+    n = fields.shape[-1]
     kernel = gaussian_matrix(n, sigma_px)
     unit = float(np.sqrt(np.sum(np.outer(kernel[n // 2], kernel[n // 2]) ** 2)))
-    values = []
     for _ in range(draws):
-        z = gaussian_blur(rng.standard_normal(normalised.shape), sigma_px) / unit
-        values.append(objective.evaluate(normalised + spread * z)["objective"].to_numpy())
-    return np.std(np.array(values), axis=0, ddof=1)
+        yield fields + spread * (gaussian_blur(rng.standard_normal(fields.shape), sigma_px) / unit)
 
 
 @dataclass
