@@ -7,7 +7,8 @@ whole batch's time divided by its moulds, and of each mould alone):
 
 - stress: the spring network's stress channels (condor.inputs.spring_stress), solved afresh;
 - network: the model with its test-time symmetrisation (8 planar transforms, run as one batch
-  in "eval" mode), inputs prepared;
+  in "eval" mode), inputs prepared; with a symmetrising checkpoint (or --symmetrise), the
+  symmetrisation of one mould as 8 network runs against one batch of 8;
 - predict, new moulds: Predictor.__call__ end to end on moulds it has not seen (the stress
   solved), at batch 1 and at batch 16;
 - predict, again: the same moulds once more (their stress channels come from the cache,
@@ -43,6 +44,8 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=123)
+    parser.add_argument("--symmetrise", action="store_true",
+                        help="symmetrise as the default checkpoint does, whatever this one says")
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
 
@@ -53,7 +56,7 @@ def main() -> None:
     from condor.surrogate.data import INPUT_VARIABLES
     from condor.surrogate.predict import Predictor, run_model
 
-    predictor = Predictor(args.checkpoint, device="cpu")
+    predictor = Predictor(args.checkpoint, device="cpu", symmetrise=True if args.symmetrise else None)
     scene = _checkpoint_scene(predictor)
     moulds = [make_mould(scene, args.seed, i, MouldParams()) for i in range(args.moulds)]
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
@@ -85,6 +88,21 @@ def main() -> None:
                       predictor.device, predictor.symmetrise, extra.get("n_cells"),
                       predictor.inputs_kind)
         print(f"  network, batch {batch:2d}:               {1e3 * _median_per_mould(network, args.moulds, args.repeats):7.2f} ms a mould")
+
+    if predictor.symmetrise and predictor.mode == "eval":
+        from condor.surrogate.models import prediction_mode
+        from condor.surrogate.predict import _symmetrised
+
+        x = torch.from_numpy(np.ascontiguousarray(network_inputs, dtype=np.float32))
+        for batched in (False, True):
+            def symmetries():
+                with prediction_mode(predictor.model, "eval"), torch.no_grad():
+                    for k in range(len(x)):
+                        _symmetrised(predictor.model, predictor.scaling, x[k:k + 1],
+                                     extra.get("n_cells", np.ones(len(x)))[k:k + 1],
+                                     predictor.inputs_kind, batched=batched)
+            how = "one batch of 8" if batched else "8 runs of 1   "
+            print(f"  symmetrisation, {how}:  {1e3 * _median_per_mould(symmetries, args.moulds, args.repeats):7.2f} ms a mould")
 
     for batch in (1, 16):
         def fresh():

@@ -286,7 +286,7 @@ def test_generator_json_is_read_as_before(tmp_path):
     again = D.load_mould(tmp_path / "g.json", TINY)
     assert again.to_dict() == mould.to_dict()
     assert D.load_mould(tmp_path / "g.json", TINY, fit=True).to_dict() == mould.to_dict()
-    with pytest.raises(InvalidMouldError, match="pass the matching scene"):
+    with pytest.raises(InvalidMouldError, match=r"pass the matching scene \(--scene"):
         D.load_mould(tmp_path / "g.json", get_scene("default"))
 
 

@@ -433,7 +433,8 @@ def _mould_json(path: Path, scene: Scene, fit, units: str | None,
     if not math.isclose(mould.box, scene.box, rel_tol=1e-9):
         raise InvalidMouldError(
             f"{path} is a mould for a {mould.box:g} l0 box, the {scene.name!r} scene has "
-            f"{scene.box:g} l0: pass the matching scene, or give its outline and tethers "
+            f"{scene.box:g} l0: pass the matching scene (--scene; a checkpoint trained on "
+            "it for predict), or give its outline and tethers "
             "alone (a minimal JSON) to be placed")
     mode = _fit_mode(fit)
     if mode is not None and not math.isclose(_fit_factor(mould.polygon, scene, mode), 1.0,
