@@ -318,6 +318,7 @@ def test_design_force_replaces_only_its_own_folder(design_checkpoint, tmp_path, 
     assert (out / "design_01.json").read_text() != "an earlier design"
     (out / "mine.txt").write_text("mine")  # the user's file in design's folder
     before = _snapshot(out)
+    capsys.readouterr()  # the run above: its progress lines (one per phase) on stderr
     code = run_main([*argv, "--force"])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "mine.txt" in err
