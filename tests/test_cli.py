@@ -1,12 +1,14 @@
 """The `condor` command line for the dataset stages, run as a user would (subprocess)."""
 
 import json
+import shutil
 import subprocess
 import sys
 
 import numpy as np
 import pytest
 
+from condor import cli
 from condor.data.fields import FIELD_NAMES
 from condor.data.moulds import load_json
 from condor.model.simulate import SimResult
@@ -82,3 +84,28 @@ def test_check_store_lists_states(tmp_path):
     assert "folded lattice" in proc.stdout
     proc = condor("check-store", tmp_path / "nowhere.zarr", cwd=tmp_path)
     assert proc.returncode == 2 and "no dataset store" in proc.stderr
+
+
+def test_version_and_bash_completion(capsys):
+    """condor --version; condor completion prints a bash script naming every subcommand and
+    each one's flags (issue 32, item 5)."""
+    import condor
+
+    with pytest.raises(SystemExit) as done:
+        cli.main(["--version"])
+    assert done.value.code == 0 and capsys.readouterr().out.strip() == f"condor {condor.__version__}"
+    cli.main(["completion"])
+    script = capsys.readouterr().out
+    assert "complete -o filenames -F _condor condor" in script
+    for command in ("mould", "simulate", "predict", "design", "check-store"):
+        assert command in script
+    assert "--l0-um" in script and "--keep" in script and "--fit" in script
+    if shutil.which("bash"):
+        subprocess.run(["bash", "-n"], input=script, text=True, check=True)  # valid syntax
+
+
+def test_help_states_each_scenes_window_in_mm(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["simulate", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "tiny 0.25 mm, default 0.5 mm, paper 1 mm" in text and "--fit extent" in text

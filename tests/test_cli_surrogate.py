@@ -317,6 +317,7 @@ def test_design_force_replaces_only_its_own_folder(design_checkpoint, tmp_path, 
     assert (out / "design_01.json").read_text() != "an earlier design"
     (out / "mine.txt").write_text("mine")  # the user's file in design's folder
     before = _snapshot(out)
+    capsys.readouterr()  # the run above: its progress lines (one per phase) on stderr
     code = run_main([*argv, "--force"])
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "mine.txt" in err
@@ -408,3 +409,75 @@ def test_predict_force_replaces_only_a_prediction(trained, tmp_path, capsys):
     err = capsys.readouterr().err
     assert code == 2 and err.count("\n") == 1 and "mine.zarr" in err and "did not write" in err
     assert (mine / "thesis" / "chapter1.tex").read_text() == "mine"
+
+
+# --------------------------------------------------------------------------- issue 32
+
+
+def _millimetre_mould(path):
+    """A 0.6 x 0.3 mm rectangle with 4 posts of radius 0.02 mm, in mm: at l0 = 16 um it is
+    37.5 x 18.75 l0, wider than the 31.25 l0 box."""
+    posts = [[x, y, 0.02] for x in (0.15, 0.45) for y in (0.08, 0.22)]
+    path.write_text(json.dumps({"outline": [[0, 0], [0.6, 0], [0.6, 0.3], [0, 0.3]],
+                                "tethers": posts, "units": "mm"}))
+    return path
+
+
+def test_predict_prints_statistics_and_writes_mm_coordinates(trained, tmp_path, capsys):
+    _, checkpoint = trained
+    mould = _millimetre_mould(tmp_path / "plate.json")
+    out = tmp_path / "p.zarr"
+    code = run_main(["predict", str(mould), "--checkpoint", str(checkpoint), "--out", str(out),
+                     "--l0-um", "16"])
+    err = capsys.readouterr().err
+    assert code == 2 and "0.5 mm square at l0 = 16 um" in err and "--fit extent" in err
+    cli.main(["predict", str(mould), "--checkpoint", str(checkpoint), "--out", str(out),
+              "--l0-um", "16", "--fit", "extent"])
+    printed = capsys.readouterr().out
+    scale = 0.9 * BOX / 37.5
+    assert f"scaled by {scale:.4g} (--fit extent)" in printed
+    written = xr.open_zarr(out)
+    assert written.attrs["fit_scale"] == pytest.approx(scale, rel=1e-9)
+    # mm coordinates: pixel centres times l0
+    np.testing.assert_allclose(written["x"].values, (np.arange(SIZE) + 0.5) * BOX / SIZE * 0.016)
+    assert written["x"].attrs["units"] == "mm" and written["y"].attrs["standard_name"] == \
+        "projection_y_coordinate"
+    assert written["raw"].attrs["long_name"] and written["raw"].attrs["units"] == "1"
+    # the statistics printed, against the definitions computed here from the fields written
+    f = written["normalised"].values.astype(np.float64).sum(axis=(1, 2))
+    P, T, Sx2, Sy2, SxSy = f[0], f[1], f[2], f[3], f[5]
+    alignment = np.hypot(Sx2 - Sy2, 2 * SxSy) / (Sx2 + Sy2)
+    stats = written.attrs["statistics"]
+    assert stats["alignment"]["value"] == pytest.approx(alignment, rel=1e-5)
+    assert stats["alignment_x"]["value"] == pytest.approx((Sx2 - Sy2) / (Sx2 + Sy2), rel=1e-5)
+    assert stats["mean_tension"]["value"] == pytest.approx(T / P, rel=1e-5)
+    lines = {line.split()[0]: line for line in printed.splitlines() if line.startswith("  ")}
+    assert f"{alignment:.4g}" in lines["alignment"]
+    # a spread only from a checkpoint with a reproducibility map (this one has none)
+    assert ("+-" in lines["alignment"]) == ("spread" in written)
+    assert {"mean_tension", "tissue_area", "tissue_area_mm2", "reproducibility"} <= set(lines)
+    assert "training domain: inside" in printed or "training domain: OUTSIDE" in printed
+    assert "tethers 4" in printed
+
+
+def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
+        design_checkpoint, tmp_path, capsys):
+    mould = _millimetre_mould(tmp_path / "plate.json")
+    out = tmp_path / "design"
+    cli.main(["design", *DESIGN, "--checkpoint", str(design_checkpoint), "--out", str(out),
+              "--mould", str(mould), "--l0-um", "16", "--fit", "extent",
+              "--keep", "footprint,posts"])
+    captured = capsys.readouterr()
+    assert "yours " in captured.out and " -> best " in captured.out
+    for phase in ("phase 1/4", "phase 2/4", "phase 3/4", "phase 4/4"):
+        assert phase in captured.err  # one line per phase, not on a terminal
+    from condor.data.drawings import load_mould
+    from condor.model.scenes import get_scene
+
+    placed = load_mould(mould, get_scene("default"), l0_um=16, fit="extent")  # box 31.25 = BOX
+    table = pd.read_csv(out / "designs.csv")
+    best = load_json(out / "design_01.json")
+    assert best.polygon.equals(placed.polygon) or \
+        best.polygon.symmetric_difference(placed.polygon).area < 1e-9
+    assert best.n_tethers <= 4 and len(table)
+    assert (out / "figures" / "designs.png").is_file()

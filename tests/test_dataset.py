@@ -119,3 +119,114 @@ def test_hardware_names_the_cpu_target_numba_compiles_for():
     record = hardware()
     assert f"({get_host_cpu_name()})" in record
     assert record.endswith(f"{os.cpu_count()} cores, {platform.machine()}")
+
+
+# --------------------------------------------------------------------------- issue 32, item 4
+
+
+@pytest.fixture(scope="module")
+def replicated_store(tmp_path_factory):
+    """3 moulds, the test ones simulated 4 and 5 times, with their expected fields derived:
+    (path, raw fields per mould (R, 8, H, W), N_c per mould)."""
+    from condor.data.store import write_expected
+
+    path = tmp_path_factory.mktemp("rep") / "dataset.zarr"
+    replicas, split = (1, 4, 5), ("train", "test", "test")
+    create_store(path, StoreSpec(3, PIXELS, 5, split, {"scene": {"name": "t", "box": 4.0},
+                                                        "pixel_size": 0.5}, replicas))
+    rng = np.random.default_rng(7)
+    meta = {"seed": 5, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
+    fields = {}
+    for mould in range(3):
+        lattice = rng.random((2, PIXELS, PIXELS)).astype(np.float32)
+        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8),
+                     meta, lattice=lattice)
+        fields[mould] = (1.0 + rng.random((replicas[mould], 8, PIXELS, PIXELS))).astype("float32")
+        for r in range(replicas[mould]):
+            write_sample(path, sample_index(replicas, mould, r), fields[mould][r],
+                         {"sim_seed": r, "n_cells": 100 + mould, "energy": 1.0,
+                          "max_force": 1e-4, "solver": "lbfgs", "solver_seconds": 1.0,
+                          "hardware": "CPU"}, "ok")
+    write_expected(path)
+    return path, fields, {m: 100.0 + m for m in range(3)}
+
+
+def test_torch_dataset_serves_lattice_n_cells_mould_and_expected_fields(replicated_store):
+    path, fields, n_cells = replicated_store
+    ds = condor.open_dataset(path)
+    items = list(condor.torch_dataset(ds, "test", lattice=True, n_cells=True, mould_id=True,
+                                      expected=True))
+    assert [int(i["mould"]) for i in items] == [1, 2]
+    for item in items:
+        mould = int(item["mould"])
+        assert float(item["n_cells"]) == n_cells[mould]
+        np.testing.assert_array_equal(item["fields"].numpy(), fields[mould][0])
+        np.testing.assert_array_equal(item["lattice"].numpy(),
+                                      ds["lattice"].isel(sample=mould).values)
+        np.testing.assert_allclose(item["fields_mean"].numpy(), fields[mould].mean(axis=0),
+                                   rtol=1e-6)
+        np.testing.assert_allclose(item["fields_std"].numpy(),
+                                   fields[mould].std(axis=0, ddof=1), rtol=1e-5)
+        assert int(item["n_replicas"]) == len(fields[mould])
+    train = condor.torch_dataset(ds, "train", expected=True)[0]
+    assert int(train["n_replicas"]) == 0 and torch.isnan(train["fields_mean"]).all()
+    batch = next(iter(torch.utils.data.DataLoader(condor.torch_dataset(ds, "test", n_cells=True),
+                                                  batch_size=2)))
+    assert batch["n_cells"].tolist() == [101.0, 102.0]
+    # without options, the documented (inputs, fields) pairs
+    inputs, _ = condor.torch_dataset(ds, "test")[0]
+    assert inputs.shape == (2, PIXELS, PIXELS)
+
+
+def test_score_matches_the_noise_corrected_error_computed_by_hand(replicated_store):
+    """condor.score against the estimator written out: per mould, the squared error of the
+    normalised prediction against the replica mean, less the replica mean's variance s^2/R,
+    averaged over fields and pixels; the RMS over moulds."""
+    path, fields, n_cells = replicated_store
+    rng = np.random.default_rng(3)
+    predictions = {m: (1.0 + rng.random((8, PIXELS, PIXELS))) for m in (1, 2)}
+    result = condor.score(predictions, path, simulated=True)  # normalised by N_c
+    per_mould = []
+    for m in (1, 2):
+        scale = PIXELS * PIXELS / n_cells[m]
+        truth = fields[m].astype(np.float64) * scale
+        plain = ((predictions[m] * scale - truth.mean(axis=0)) ** 2).mean()
+        noise = (truth.var(axis=0, ddof=1) / len(truth)).mean()
+        per_mould.append(plain - noise)
+    row = result["accuracy"].set_index("method").loc["predictions"]
+    assert row["field_error"] == pytest.approx(np.sqrt(np.mean(per_mould)), rel=1e-9)
+    assert row["field_error_lo"] <= row["field_error"] <= row["field_error_hi"]
+    assert list(result["moulds"]) == [1, 2]
+    # the same predictions as an array in the order of ds["replicated"]
+    again = condor.score(np.stack([predictions[1], predictions[2]]), condor.open_dataset(path),
+                         simulated=True)
+    assert again["accuracy"].set_index("method").loc["predictions", "field_error"] == \
+        pytest.approx(row["field_error"], rel=1e-12)
+    assert {"r", "r_lo", "r_hi", "bias", "bias_lo", "bias_hi"} <= set(result["statistics"])
+    with pytest.raises(ValueError, match="2 replicated"):
+        condor.score(np.zeros((3, 8, PIXELS, PIXELS)), path)
+
+
+def test_store_has_cf_attributes_and_x_y_coordinates(replicated_store):
+    ds = condor.open_dataset(replicated_store[0])
+    np.testing.assert_allclose(ds["x"].values, (np.arange(PIXELS) + 0.5) * 0.5)
+    np.testing.assert_allclose(ds["y"].values, (np.arange(PIXELS) + 0.5) * 0.5)
+    assert ds["x"].attrs["units"] == "l0" and ds["x"].attrs["standard_name"] == \
+        "projection_x_coordinate"
+    for name in ("inputs", "lattice", "fields", "fields_mean", "fields_std", "n_cells"):
+        assert ds[name].attrs["long_name"] and "units" in ds[name].attrs, name
+    assert ds.attrs["Conventions"].startswith("CF-")
+
+
+def test_card_counts_moulds_and_simulations_apart_and_gives_licence_and_citation(
+        replicated_store, tmp_path):
+    text = dataset.write_card(replicated_store[0], tmp_path / "README.md").read_text()
+    assert "3 moulds, 10 simulations (10 ok)" in text
+    table = [r for r in text.splitlines() if r.startswith("| test | 2 | 9 |")]
+    assert table, "the split table gives the test split 2 moulds and 9 simulations"
+    assert "Licence:" in text and "Andrews, Dickinson and Hague" in text
+    assert "condor.score" in text and "expected=True" in text
+
+
+def test_dir_condor_lists_what_it_offers():
+    assert {"open_dataset", "torch_dataset", "score", "__version__"} <= set(dir(condor))

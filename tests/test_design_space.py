@@ -153,3 +153,37 @@ def test_design_moulds_round_trip_through_the_mould_file_that_condor_simulate_re
         back = load_json(tmp_path / f"{i}.json")  # validates, as `condor simulate` does
         assert back.polygon.equals_exact(mould.polygon, 0)
         assert np.array_equal(back.tethers, mould.tethers) and back.symmetry == "none"
+
+
+def test_constrained_space_keeps_your_footprint_and_post_count():
+    """design --mould --keep footprint,posts (issue 32): every decoded mould has exactly the
+    user's outline, and --keep posts gives the user's number of posts wherever they fit."""
+    from shapely.geometry import Point, box as shapely_box
+
+    from condor.design import constrained_space
+    from condor.data.drawings import place_mould
+    from condor.model.scenes import get_scene
+
+    scene = get_scene("default")
+    lobes = Point(0, 0).buffer(6, 64).union(Point(14, 0).buffer(6, 64))
+    outline = lobes.union(shapely_box(0, -2, 14, 2))  # a dog-bone, 26 x 12 l0
+    user = place_mould(outline, [[0, 0, 1.5], [14, 0, 1.5]], scene)
+    rng = np.random.default_rng(4)
+    both = constrained_space(scene, user, ["footprint", "posts"])
+    counts = []
+    for vector in both.random_vectors(rng, 30):
+        mould = both.mould(vector)
+        assert mould.polygon.equals(user.polygon)
+        assert all(mould.polygon.contains(Point(x, y).buffer(r)) for x, y, r in mould.tethers)
+        counts.append(mould.n_tethers)
+    assert max(counts) == 2  # never more posts than yours
+    # the search's starting point (genes 0) puts one post into each lobe, along the axis
+    start = both.mould(np.zeros(both.dim))
+    assert start.n_tethers == 2
+    assert sorted(np.sign(start.tethers[:, 0] - user.polygon.centroid.x)) == [-1, 1]
+    posts = constrained_space(scene, user, ["posts"])
+    assert posts.footprint is None and posts.n_tethers == 2 and posts.all_present
+    shapes = [posts.mould(v).polygon.area for v in posts.random_vectors(rng, 5)]
+    assert np.ptp(shapes) < 1e-9 * scene.box**2  # the training area, searched outline
+    with pytest.raises(ValueError, match="--keep"):
+        constrained_space(scene, user, ["outline"])

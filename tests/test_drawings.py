@@ -159,14 +159,14 @@ def test_dxf_in_metres_names_its_unit(tmp_path):
     doc.modelspace().add_lwpolyline([(0, 0), (4e-4, 0), (4e-4, 3e-4), (0, 3e-4)], close=True)
     doc.saveas(tmp_path / "m.dxf")
     with pytest.raises(D.DrawingError, match=r"is drawn in meters \(\$INSUNITS = 6, read as "
-                                             r"1000 mm a unit\): pass l0_um"):
+                                             r"1000 mm a unit\): give the cell spacing .* with --l0-um"):
         D.load_mould(tmp_path / "m.dxf", TINY)
     xmin, ymin, xmax, ymax = D.load_mould(tmp_path / "m.dxf", TINY, l0_um=40).polygon.bounds
     assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 7.5), rel=1e-9)
     doc.units = 0  # unitless: the message says the unit came from the units argument
     doc.saveas(tmp_path / "bare.dxf")
     with pytest.raises(D.DrawingError, match=r"is drawn in mm \(\$INSUNITS = 0, unitless: "
-                                             r"units = 'mm' says so\)"):
+                                             r"--units mm says so\)"):
         D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
 
 
@@ -175,11 +175,11 @@ def test_unitless_dxf_needs_units(tmp_path):
     doc.units = 0
     doc.modelspace().add_lwpolyline([(0, 0), (10, 0), (10, 5), (0, 5)], close=True)
     doc.saveas(tmp_path / "bare.dxf")
-    with pytest.raises(D.DrawingError, match=r"does not state its units .*pass units"):
+    with pytest.raises(D.DrawingError, match=r"does not state its units .*pass --units"):
         D.load_mould(tmp_path / "bare.dxf", TINY)
     assert D.load_mould(tmp_path / "bare.dxf", TINY, units="l0").polygon.area == \
         pytest.approx(50.0)
-    with pytest.raises(D.DrawingError, match="pass l0_um"):
+    with pytest.raises(D.DrawingError, match="with --l0-um"):
         D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
 
 
@@ -198,7 +198,8 @@ SQUARE = [[0, 0], [10, 0], [10, 10], [0, 10]]
 
 @pytest.mark.parametrize("outline, tethers, holes, message", [
     ([[0, 0], [20, 0], [20, 5], [0, 5]], [], None,
-     r"20 l0 wide .*larger than the 'tiny' scene's box of 15.62 l0"),
+     r"20 l0 wide .*the 'tiny' scene's window is 15.62 l0 square .*--fit extent scales it "
+     r"by 0.7031"),  # 0.9 * 15.625 / 20
     (SQUARE, [[12, 5, 1]], None, r"tethers\[0\] at \(12, 5\) l0 is outside the outline"),
     (SQUARE, [[9.5, 5, 1]], None, r"tethers\[0\] .* is crossing the outline"),
     (SQUARE, [[4, 5, 1], [5.5, 5, 1]], None, r"tethers\[0\] and tethers\[1\] overlap"),
@@ -249,10 +250,10 @@ def test_svg_refusals_name_the_shapes(tmp_path, body, message):
 
 
 @pytest.mark.parametrize("kwargs, message", [
-    ({"l0_um": -1.0}, "l0_um = -1.0 must be a positive number"),
-    ({"l0_um": float("nan")}, "l0_um = nan"),
-    ({"l0_um": True}, "l0_um = True"),
-    ({"units": "inch"}, "units = 'inch'"),
+    ({"l0_um": -1.0}, "--l0-um -1.0 must be a positive number"),
+    ({"l0_um": float("nan")}, "--l0-um nan"),
+    ({"l0_um": True}, "--l0-um True"),
+    ({"units": "inch"}, "--units 'inch'"),
     ({"units": "mm"}, "states its units .*contradicts"),
 ])
 def test_bad_arguments_are_named(tmp_path, kwargs, message):
@@ -271,7 +272,7 @@ def test_file_level_errors(tmp_path):
             {"outline": SQUARE, "tether": [], "units": "l0"})), TINY)
     with pytest.raises(D.DrawingError, match=r"does not state its units \('units'\)"):
         D.load_mould(_write(tmp_path / "u.json", json.dumps({"outline": SQUARE})), TINY)
-    with pytest.raises(D.DrawingError, match="is drawn in mm .*pass l0_um"):
+    with pytest.raises(D.DrawingError, match="is drawn in mm .*--l0-um"):
         D.load_mould(_outline(tmp_path / "mm.json", SQUARE, units="mm"), TINY)
     with pytest.raises(D.DrawingError, match="not a readable SVG"):
         D.load_mould(_write(tmp_path / "x.svg", "<svg"), TINY)
@@ -285,7 +286,7 @@ def test_generator_json_is_read_as_before(tmp_path):
     again = D.load_mould(tmp_path / "g.json", TINY)
     assert again.to_dict() == mould.to_dict()
     assert D.load_mould(tmp_path / "g.json", TINY, fit=True).to_dict() == mould.to_dict()
-    with pytest.raises(InvalidMouldError, match="pass the matching scene"):
+    with pytest.raises(InvalidMouldError, match=r"pass the matching scene \(--scene"):
         D.load_mould(tmp_path / "g.json", get_scene("default"))
 
 
@@ -361,9 +362,15 @@ def test_fit_scales_to_the_training_area_keeping_the_shape(tmp_path):
     assert not any("area" in w for w in D.training_domain_check(fitted, TINY))
     with pytest.raises(D.OutsideTrainingDomainError, match=r"area is 0.0492 of the box"):
         D.training_domain_check(kept, TINY)
-    too_long = _outline(tmp_path / "long.json", [[0, 0], [14, 0], [14, 0.5], [0, 0.5]])
-    with pytest.raises(InvalidMouldError, match="scaled to the training area .* too elongated"):
-        D.load_mould(too_long, TINY, fit=True)
+    # too elongated for the training area: the area fit is capped by the extent fit, so it
+    # still fits the window, its larger side 0.9 of the box
+    too_long = _outline(tmp_path / "long.json", [[0, 0], [14, 0], [14, 2], [0, 2]])
+    placed = D.load_placement(too_long, TINY, fit=True)
+    assert placed.fit == "area" and placed.scale == pytest.approx(0.9 * TINY.box / 14, rel=1e-12)
+    xmin, ymin, xmax, ymax = placed.mould.polygon.bounds
+    assert (xmax - xmin, ymax - ymin) == pytest.approx((0.9 * TINY.box, 0.9 * TINY.box / 7))
+    with pytest.raises(D.OutsideTrainingDomainError, match="area is"):
+        D.training_domain_check(placed.mould, TINY)
 
 
 def _square_mould(fraction, tethers=()) -> Mould:
@@ -544,3 +551,93 @@ def test_an_inkscape_style_svg(tmp_path):
     assert sorted(mould.tethers[:, 0] - xmin) == pytest.approx([15 / 4, 35 / 4])
     np.testing.assert_allclose(mould.tethers[:, 1], ymax - 20 / 4)  # 20 mm below the top
     np.testing.assert_allclose(mould.tethers[:, 2], 0.5)
+
+
+# --------------------------------------------------------------------------- real sizes (issue 32)
+
+# A dog-bone drawn from scratch in mm: two lobes of radius 2.2 mm centred 4.4 mm apart joined
+# by a bar 1.6 mm high, 8.8 x 4.4 mm in all, drawn with arcs; a post of radius 0.5 mm in
+# each lobe.
+def _dogbone_svg(k: float = 1.0, head: str = 'width="8.8mm" height="4.4mm" viewBox="0 0 8.8 4.4"') -> str:
+    """The dog-bone with every length (mm) times k."""
+    half = math.sqrt(2.2**2 - 0.8**2)  # where the bar meets a lobe, from the lobe's centre
+    a, b, r, y0, y1, c1, c2, cy, p = (v * k for v in (2.2 + half, 6.6 - half, 2.2, 1.4, 3.0,
+                                                       2.2, 6.6, 2.2, 0.5))
+    return (f'<svg xmlns="http://www.w3.org/2000/svg" {head}>\n'
+            f'  <path id="bone" d="M {a!r} {y0!r} L {b!r} {y0!r} A {r!r} {r!r} 0 1 1 {b!r} {y1!r} '
+            f'L {a!r} {y1!r} A {r!r} {r!r} 0 1 1 {a!r} {y0!r} Z"/>\n'
+            f'  <circle cx="{c1!r}" cy="{cy!r}" r="{p!r}"/><circle cx="{c2!r}" cy="{cy!r}" r="{p!r}"/>\n'
+            '</svg>\n')
+
+
+DOGBONE_SVG = _dogbone_svg()
+DEFAULT = get_scene("default")  # box 31.25 l0: 0.5 mm at l0 = 16 um
+
+
+def _dogbone_area_mm2() -> float:
+    """The dog-bone's area by shapely, independently of the SVG reader (fine circles)."""
+    lobes = Point(2.2, 2.2).buffer(2.2, 4096).union(Point(6.6, 2.2).buffer(2.2, 4096))
+    return lobes.union(shapely_box(2.2, 1.4, 6.6, 3.0)).area
+
+
+def test_an_8_8_mm_dogbone_is_refused_with_the_window_and_the_way_forward(tmp_path):
+    path = _write(tmp_path / "bone.svg", DOGBONE_SVG)
+    scale = 0.9 * 31.25 / (8800 / 16)  # 0.9 of the box over the drawn 550 l0
+    with pytest.raises(InvalidMouldError) as caught:
+        D.load_mould(path, DEFAULT, l0_um=16)
+    message = str(caught.value)
+    assert "550 l0 = 8.8 mm wide" in message
+    assert "window is 31.25 l0 = 0.5 mm square at l0 = 16 um" in message
+    assert f"--fit extent scales it by {scale:.4g}" in message
+    assert "--l0-um 313" in message  # 16 * 550 / 28.125 = 312.9: the spacing that fits it
+    assert "l0_um" not in message and "fit=True" not in message
+
+
+@pytest.mark.parametrize("fit", ["extent", "area"])
+def test_fit_keeps_the_aspect_ratio_and_returns_the_scale(tmp_path, fit):
+    path = _write(tmp_path / "bone.svg", DOGBONE_SVG)
+    placed = D.load_placement(path, DEFAULT, l0_um=16, fit=fit)
+    # the area fit (0.4 of the box) would make it wider than the box: capped by the extent
+    scale = 0.9 * 31.25 / 550
+    assert placed.scale == pytest.approx(scale, rel=1e-6) and placed.fit == fit
+    xmin, ymin, xmax, ymax = placed.mould.polygon.bounds
+    assert xmax - xmin == pytest.approx(0.9 * 31.25, rel=1e-6)
+    # chords lie within FLATTEN_TOLERANCE_L0 (0.01 l0 of the drawn 275 l0) of the arcs
+    assert (ymax - ymin) / (xmax - xmin) == pytest.approx(0.5, rel=1e-4)
+    area_l0 = _dogbone_area_mm2() * (1000 / 16) ** 2 * scale ** 2
+    assert placed.mould.polygon.area == pytest.approx(area_l0, rel=1e-3)
+    np.testing.assert_allclose(placed.mould.tethers[:, 2], 0.5 * 1000 / 16 * scale, rtol=1e-6)
+    np.testing.assert_allclose(sorted(placed.mould.tethers[:, 0]),
+                               [31.25 / 2 - 2.2 * 62.5 * scale, 31.25 / 2 + 2.2 * 62.5 * scale],
+                               rtol=1e-6)
+    assert f"scaled by {scale:.4g} (--fit {fit})" in placed.describe()
+    assert placed.record()["fit_scale"] == pytest.approx(scale, rel=1e-6)
+
+
+def test_a_unitless_svg_is_read_as_css_px_and_says_so(tmp_path):
+    """The dog-bone with its numbers in CSS px (96 an inch) and no units stated reads as the
+    same geometry as the mm drawing, and the placement says how it was read."""
+    text = _dogbone_svg(96 / 25.4, head="")
+    mm = D.load_placement(_write(tmp_path / "mm.svg", DOGBONE_SVG), DEFAULT, l0_um=16,
+                          fit="extent")
+    css = D.load_placement(_write(tmp_path / "px.svg", text), DEFAULT, l0_um=16, fit="extent")
+    assert "CSS px" in css.reading and "96 px an inch" in css.reading
+    assert css.drawn_l0 == pytest.approx(mm.drawn_l0, rel=1e-6)
+    assert css.mould.polygon.area == pytest.approx(mm.mould.polygon.area, rel=1e-6)
+    np.testing.assert_allclose(css.mould.tethers, mm.mould.tethers, atol=1e-6)
+
+
+def test_an_8_by_5_mm_dxf_fits_by_area_with_the_scale_computed_by_hand(tmp_path):
+    doc = ezdxf.new(units=4)  # mm
+    msp = doc.modelspace()
+    msp.add_lwpolyline([(0, 0), (8, 0), (8, 5), (0, 5)], close=True)
+    for x, y in [(1.5, 1.2), (6.5, 1.2), (1.5, 3.8), (6.5, 3.8)]:
+        msp.add_circle((x, y), 0.4)
+    doc.saveas(tmp_path / "plate.dxf")
+    placed = D.load_placement(tmp_path / "plate.dxf", DEFAULT, l0_um=16, fit=True)
+    side = 1000 / 16  # l0 per mm
+    by_area = math.sqrt(0.4 * 31.25**2 / (40 * side**2))
+    by_extent = 0.9 * 31.25 / (8 * side)
+    assert placed.scale == pytest.approx(min(by_area, by_extent), rel=1e-9)
+    assert placed.mould.polygon.area == pytest.approx(40 * (side * placed.scale) ** 2, rel=1e-9)
+    assert "millimeters" in placed.reading

@@ -290,6 +290,19 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channel
     direct, _ = run_model(predictor.model, predictor.scaling, read, symmetrise=True,
                           n_cells=np.full(len(test), 100.0), inputs_kind=kind)
     assert np.allclose(direct, prediction.raw, atol=1e-6)
+    # the 8 planar transforms run as one batch ("eval" mode) give what 8 runs give
+    import torch
+
+    from condor.surrogate.models import prediction_mode
+    from condor.surrogate.predict import _symmetrised
+
+    x = torch.from_numpy(np.ascontiguousarray(read, dtype=np.float32))
+    cells = np.full(len(test), 100.0)
+    with prediction_mode(predictor.model, "eval"), torch.no_grad():
+        apart = _symmetrised(predictor.model, predictor.scaling, x, cells, kind, batched=False)
+        together = _symmetrised(predictor.model, predictor.scaling, x, cells, kind, batched=True)
+    for a, b in zip(apart, together):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
 
 
 def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypatch):
@@ -312,3 +325,25 @@ def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypat
         train(ds, cfg, tmp_path / f"e{epochs}.pt", log=lambda _: None)
         counts.append(list(calls))
     assert counts[0] == counts[1] and len(counts[0]) >= 2  # the training and the val split
+
+
+def test_a_mould_s_stress_is_solved_once_and_cached(monkeypatch):
+    """stress_channels keeps the moulds it solved (STRESS_CACHE_SIZE): a mould seen again is
+    not solved again, and gets the same channels; the oldest is dropped first."""
+    calls = []
+    real = inputs.spring_stress
+    monkeypatch.setattr(inputs, "spring_stress",
+                        lambda masks, shear=False: calls.append(1) or real(masks, shear))
+    monkeypatch.setattr(inputs, "STRESS_CACHE_SIZE", 2)
+    monkeypatch.setattr(inputs, "_STRESS_CACHE", type(inputs._STRESS_CACHE)())
+    masks = np.zeros((3, 2, 12, 12), np.uint8)
+    for k in range(3):
+        masks[k, 0, 2:10, 2:10 - k] = 1
+        masks[k, 1, 5, 3] = masks[k, 1, 5, 7 - k] = 1
+    first = inputs.stress_channels(masks[:2])
+    again = inputs.stress_channels(masks[:2])
+    assert len(calls) == 2 and np.array_equal(first, again)
+    np.testing.assert_array_equal(first[1], real(masks[1]))
+    inputs.stress_channels(masks[2:])  # a third mould: the first is dropped
+    inputs.stress_channels(masks[:1])
+    assert len(calls) == 4

@@ -12,7 +12,7 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.data.drawings import load_mould, training_domain_check
+from condor.data.drawings import load_placement, training_domain_check
 from condor.data.moulds import MouldParams, input_channels, save_json
 from condor.model.scenes import PRESETS, Scene, get_scene, same_length
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
@@ -88,27 +88,49 @@ def cmd_mould(args) -> None:
           f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
 
 
+def _windows(l0_um: float = 16.0) -> str:
+    """Each scene's window (its square box) in mm at cell spacing `l0_um`."""
+    return ", ".join(f"{name} {scene.box * l0_um / 1000:.3g} mm"
+                     for name, scene in sorted(PRESETS.items(), key=lambda kv: kv[1].box))
+
+
 def _user_mould_args(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--l0-um", type=_positive_float, default=None,
                         help="cell spacing l0 in micrometres, for a drawing in mm or um (and "
-                             "drawings written in mm too)")
+                             "drawings written in mm too). A scene's window is its box in l0 "
+                             f"times l0: at --l0-um 16, {_windows(16.0)} square (a drawing "
+                             "larger than that needs --fit)")
     parser.add_argument("--units", choices=["l0", "mm", "um"], default=None,
-                        help="units of a drawing that does not state its own")
-    parser.add_argument("--fit", action="store_true",
-                        help="scale the drawing to the training moulds' area (40%% of the box) "
-                             "instead of keeping its drawn size")
+                        help="units of a drawing that does not state its own (an SVG without "
+                             "them is read as CSS px, 96 px an inch)")
+    parser.add_argument("--fit", nargs="?", const="area", default=None,
+                        choices=["area", "extent"],
+                        help="scale the drawing, keeping its aspect ratio: --fit extent makes "
+                             "its larger side 0.9 of the window (the training moulds' largest); "
+                             "--fit (or --fit area) makes its area the training moulds' (40%% "
+                             "of the box), capped by the extent fit. The scale factor is "
+                             "printed and recorded. Default: keep the drawn size")
 
 
-def _load_mould(args, scene):
-    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings)."""
-    return load_mould(args.mould, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+def _load_mould(args, scene, path=None):
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings),
+    with its placement (how its units were read, its scale factor) printed."""
+    return _load_placement(args, scene, path).mould
+
+
+def _load_placement(args, scene, path=None):
+    path = args.mould if path is None else path
+    placement = load_placement(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+    print(f"{path}: {placement.describe()}", flush=True)
+    return placement
 
 
 def cmd_simulate(args) -> None:
     scene = get_scene(args.scene)
     out = _new_output(args.out, args.force)
-    mould = _load_mould(args, scene)
-    result = simulate_mould(mould, scene, args.solver, args.budget, args.seed)
+    placement = _load_placement(args, scene)
+    result = simulate_mould(placement.mould, scene, args.solver, args.budget, args.seed)
+    result.info["placement"] = placement.record()  # the scale factor, the units read
     result.save(out)
     print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
           f"{result.energy_per_cell:.6g}, {result.seconds:.2f} s ({result.solver})")
@@ -247,6 +269,9 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_predict(args) -> None:
+    from condor.surrogate.answer import (MASK_ONLY_MEASURED, domain_table, domain_verdict,
+                                         format_summary, mould_summary)
+    from condor.surrogate.calibration import tissue_pixels
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
     out = Path(args.out)
@@ -255,11 +280,14 @@ def cmd_predict(args) -> None:
     _refuse_dataset(out)
     _new_output(out, args.force)
     predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode)
+    placement, verdict = None, None
     if Path(args.mould).suffix.lower() in (".json", ".svg", ".dxf"):
         scene = _checkpoint_scene(predictor)
-        mould = _load_mould(args, scene)
+        placement = _load_placement(args, scene)
+        mould = placement.mould
         for warning in training_domain_check(mould, scene):
             print(f"condor predict: warning: {warning}", file=sys.stderr)
+        verdict = domain_verdict(domain_table(mould, scene))
         inputs = input_channels(mould, predictor.native)
         exact = predictor.mould_arguments([mould])  # N_c and lattice channels, when known
         n_cells, lattice = exact.get("n_cells"), exact.get("lattice")
@@ -270,18 +298,44 @@ def cmd_predict(args) -> None:
         raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
     if predictor.needs_lattice and lattice is None:
         print(f"condor predict: warning: {args.mould} is a picture: the lattice channels this "
-              "checkpoint reads are estimated from its pixels (a mould file gives exact ones)",
-              file=sys.stderr)
+              "checkpoint reads are estimated from its pixels, which measured much worse than "
+              f"a mould file's geometry: {MASK_ONLY_MEASURED}. Give the mould as JSON, SVG or "
+              "DXF for the exact channels", file=sys.stderr)
         lattice = predictor.estimate_lattice(inputs)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
+    pixel_size = predictor.pixel_size
+    table = None
+    if pixel_size is not None:
+        from condor.design.search import prediction_spread
+
+        spread = prediction_spread(prediction)  # in normalised units, like the fields
+        table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size,
+                              spread, tissue=tissue_pixels(inputs[None])[0],
+                              sigma_px=predictor.sigma / pixel_size, l0_um=args.l0_um)
     if out.suffix.lower() == ".png":
-        plots.prediction_panels(inputs, prediction, out)
+        plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
+                                symmetrised=bool(predictor.symmetrise))
     else:
-        write_prediction(out, prediction, inputs, predictor.pixel_size,
-                         {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
-                          "mode": predictor.mode}, overwrite=args.force)
+        attrs = {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
+                 "mode": predictor.mode}
+        if placement is not None:
+            attrs.update({k: v for k, v in placement.record().items() if v is not None})
+        if verdict is not None:
+            attrs["training_domain"] = verdict
+        if table is not None:
+            attrs["statistics"] = {row.statistic: {"value": float(row.value),
+                                                   "spread": float(row.spread),
+                                                   "unit": row.unit}
+                                   for row in table.itertuples()}
+        write_prediction(out, prediction, inputs, pixel_size, attrs, overwrite=args.force,
+                         l0_um=args.l0_um)
     print(f"{out}: 8 fields at {predictor.native} px, predicted N_c = "
           f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
+    if table is not None:
+        print("whole-mould statistics, predicted (+- one simulation's predicted spread):")
+        print(format_summary(table))
+    if verdict is not None:
+        print(f"training domain: {verdict}")
 
 
 def cmd_design(args) -> None:
@@ -294,12 +348,17 @@ def cmd_design(args) -> None:
     if np.isnan(scene.depth):
         raise CLIError(f"checkpoint {args.checkpoint!r} records no mould depth: its designs "
                        "cannot be simulated")
-    yours = [load_mould(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
-             for path in args.mould or ()]
+    yours = [_load_mould(args, scene, path) for path in args.mould or ()]
+    keep = tuple(k for k in (args.keep or "").split(",") if k)
+    if keep and not yours:
+        raise CLIError(f"--keep {args.keep} constrains the search to your mould: give it with "
+                       "--mould")
     summary = design(scene, args.checkpoint, args.out, args.objective, budget=args.budget,
                      seed=args.seed, n_top=args.top, n_random=args.random,
                      replicas=args.replicas, store=args.store, l0_um=args.l0_um,
-                     your_moulds=yours, force=args.force).iloc[0]
+                     your_moulds=yours, force=args.force, keep=keep,
+                     say=lambda line: print(f"condor design: {line}", file=sys.stderr,
+                                            flush=True)).iloc[0]
     print(f"{args.out}: designs.csv, summary.csv, design_01..{args.top:02d} .json/.svg/.dxf, "
           "predictions.zarr, figures/")
     print(f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
@@ -309,7 +368,17 @@ def cmd_design(args) -> None:
         print(f"best test mould of {args.store}: {summary['best_baseline']:.4g} "
               f"(improvement {summary['improvement']:+.4g})")
     if yours:
-        print(f"your moulds, predicted and simulated: {Path(args.out) / 'your_moulds.csv'}")
+        import pandas as pd
+
+        table = pd.read_csv(Path(args.out) / "your_moulds.csv")
+        for row in table.itertuples():
+            print(f"yours {row.simulated_objective:.3g} +- {row.simulated_objective_std:.2g} "
+                  f"(predicted {row.predicted_objective:.3g} +- {row.predicted_spread:.2g}) -> "
+                  f"best {summary['best_simulated']:.3g} simulated: {args.objective} "
+                  f"{summary['best_simulated'] - row.simulated_objective:+.3g} "
+                  f"(mould {row.mould}, {args.mould[row.mould - 1]})")
+        print(f"your moulds, predicted and simulated: {Path(args.out) / 'your_moulds.csv'}; "
+              f"drawn beside the best designs in {Path(args.out) / 'figures' / 'designs.png'}")
 
 
 def _checkpoint_scene(predictor):
@@ -348,8 +417,16 @@ def _refuse_dataset(path: Path) -> None:
 # --- the parser ---------------------------------------------------------------------------------
 
 def build_parser() -> argparse.ArgumentParser:
+    from condor import __version__
+
     parser = argparse.ArgumentParser(prog="condor", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"condor {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
+
+    p = sub.add_parser("completion", help="print a bash completion script: "
+                       "eval \"$(condor completion)\" (or save it in "
+                       "~/.local/share/bash-completion/completions/condor)")
+    p.set_defaults(func=cmd_completion)
 
     p = sub.add_parser("mould", help="generate one mould: geometry JSON and a picture")
     p.add_argument("--seed", type=_non_negative_int, required=True, help="global seed")
@@ -477,10 +554,51 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--mould", action="append", default=None,
                    help="your own mould (JSON, SVG or DXF; repeat for several): scored, "
                         "predicted and simulated, as the design to beat")
+    p.add_argument("--keep", default=None, choices=["footprint", "posts", "footprint,posts",
+                                                    "posts,footprint"],
+                   help="constrain the search to your (first) mould: footprint keeps its "
+                        "outline and searches where its posts go; posts keeps its number of "
+                        "posts; footprint,posts both")
     _user_mould_args(p)
     _force_arg(p)
     p.set_defaults(func=cmd_design)
     return parser
+
+
+def completion_script(parser: argparse.ArgumentParser | None = None) -> str:
+    """A bash completion script for `condor`: subcommands, then each one's options (files
+    otherwise), generated from the parser so that it never goes stale."""
+    parser = parser or build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    cases = []
+    for name, child in sub.choices.items():
+        options = sorted(o for a in child._actions for o in a.option_strings)
+        cases.append(f'        {name}) opts="{" ".join(options)}" ;;')
+    commands = " ".join(sub.choices)
+    return "\n".join([
+        "# bash completion for condor (condor completion)",
+        "_condor() {",
+        "    local cur=${COMP_WORDS[COMP_CWORD]} opts",
+        "    if [ \"$COMP_CWORD\" -eq 1 ]; then",
+        f"        COMPREPLY=($(compgen -W \"{commands} --help --version\" -- \"$cur\"))",
+        "        return",
+        "    fi",
+        "    case ${COMP_WORDS[1]} in",
+        *cases,
+        "        *) opts=\"\" ;;",
+        "    esac",
+        "    if [[ $cur == -* ]]; then",
+        "        COMPREPLY=($(compgen -W \"$opts\" -- \"$cur\"))",
+        "    else",
+        "        COMPREPLY=($(compgen -f -- \"$cur\"))",
+        "    fi",
+        "}",
+        "complete -o filenames -F _condor condor",
+        ""])
+
+
+def cmd_completion(args) -> None:
+    sys.stdout.write(completion_script())
 
 
 def _device_arg(parser: argparse.ArgumentParser) -> None:

@@ -424,13 +424,29 @@ def evaluation_figures(ev, true: np.ndarray, pred: np.ndarray, out_dir) -> list[
     return paths
 
 
-def prediction_panels(inputs, prediction, path, title: str = "") -> Path:
-    """A prediction (condor.surrogate.predict.Prediction) of one mould: the inputs, each field
-    raw, normalised and (when predicted) its spread."""
+def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
+                      verdict: str | None = None, symmetrised: bool = True) -> Path:
+    """A prediction (condor.surrogate.predict.Prediction) of one mould on one page: the
+    inputs, each field raw, normalised and (when predicted) its spread; the title holds the
+    whole-mould statistics (`summary`, condor.surrogate.answer.mould_summary), the training
+    domain `verdict`, and why SxSz and SySz are zero (`symmetrised`: the checkpoint averages
+    over the mould's symmetries, so they are exactly zero)."""
+    import textwrap
+
     rows = [("", [("mould", inputs[0]), ("tether", inputs[1])]),
             ("raw", list(zip(FIELD_NAMES, prediction.raw))),
             ("normalised", list(zip(FIELD_NAMES, prediction.normalised)))]
     if prediction.spread is not None:
         rows.append(("spread", list(zip(FIELD_NAMES, prediction.spread))))
-    return image_grid(rows, path, title or f"predicted fields, N_c = "
-                                           f"{float(prediction.n_cells):.1f}", dpi=90)
+    lines = [title or f"predicted fields, N_c = {float(prediction.n_cells):.1f}"]
+    if summary is not None:
+        parts = [f"{r.statistic} {r.value:.3g}" + (f" ± {r.spread:.2g}" if np.isfinite(r.spread)
+                                                   else "") for r in summary.itertuples()
+                 if np.isfinite(r.value)]
+        lines += textwrap.wrap("; ".join(parts), 120)
+    if verdict is not None:
+        lines += textwrap.wrap("training domain: " + verdict, 120)
+    lines.append("SxSz and SySz: zero in expectation, the mould being mirror-symmetric in z"
+                 + (" (the prediction is symmetrised, so they are flat zero)" if symmetrised else
+                    "; this checkpoint does not symmetrise, so what shows is its error"))
+    return image_grid(rows, path, "\n".join(lines), dpi=90)

@@ -10,8 +10,9 @@ training domain, and write it back as a drawing (SVG, DXF) with dimensions.
   closed shape is the outline, closed shapes inside it are holes, circles are tethers.
 
 Drawings in mm (or um) need the cell spacing `l0_um` (micrometres) to become l0. The
-drawing keeps its size and is centred in the scene's box; `fit=True` scales it to the
-training moulds' area instead. docs/user_moulds.md states every rule; the module's
+drawing keeps its size and is centred in the scene's box; `fit="extent"` scales it to the
+window, `fit="area"` (or True) to the training moulds' area instead (`load_placement`
+returns the scale factor). docs/user_moulds.md states every rule; the module's
 constants are their one home.
 """
 
@@ -22,7 +23,7 @@ import json
 import math
 import numbers
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from xml.etree import ElementTree
 from xml.sax.saxutils import escape
@@ -68,13 +69,15 @@ class OutsideTrainingDomainError(InvalidMouldError):
 # --------------------------------------------------------------------------- the entry point
 
 
-def load_mould(path, scene: Scene, l0_um: float | None = None, fit: bool = False,
+def load_mould(path, scene: Scene, l0_um: float | None = None, fit=False,
                units: str | None = None) -> Mould:
     """The mould in `path` (.json, .svg or .dxf), placed in `scene`'s box (lengths in l0).
 
     l0_um: the cell spacing l0 in micrometres; required for a drawing in mm or um.
-    fit: scale the drawing so its area is the training moulds' (scene.area_fraction of the
-        box) instead of keeping its drawn size.
+    fit: False keeps the drawn size; "extent" scales the drawing, keeping its aspect
+        ratio, so that its larger side is scene.max_extent of the box; "area" (or True)
+        so that its area is the training moulds' (scene.area_fraction of the box), capped
+        by the extent fit. `load_placement` also returns the scale factor.
     units: "l0", "mm" or "um", for a file that does not state its units (a minimal JSON
         without "units", a DXF with $INSUNITS = 0, an SVG whose root has neither
         data-units nor an absolute width/height); a file that states other units is an
@@ -86,16 +89,23 @@ def load_mould(path, scene: Scene, l0_um: float | None = None, fit: bool = False
     both ValueErrors whose message names the file and the bad value. OSError if the file
     cannot be read.
     """
+    return load_placement(path, scene, l0_um=l0_um, fit=fit, units=units).mould
+
+
+def load_placement(path, scene: Scene, l0_um: float | None = None, fit=False,
+                   units: str | None = None, data=None) -> Placement:
+    """As load_mould, with how the mould was placed: its scale factor (`Placement.scale`),
+    the fit mode and the drawn size (for printing and recording)."""
     path = Path(path)
     _check_arguments(l0_um, units)
-    data = None
-    if path.suffix.lower() == ".json":
+    if data is None and path.suffix.lower() == ".json":
         data = _read_json(path)
-        if isinstance(data, dict) and "polygon" in data:
-            return _mould_json(path, scene, fit, units)
+    if isinstance(data, dict) and "polygon" in data:
+        return _mould_json(path, scene, fit, units, l0_um)
     drawing = _read_drawing(path, l0_um, units, data)
-    return place_mould(drawing.polygon, drawing.tethers, scene, fit=fit, l0_um=l0_um,
-                       source=str(path))
+    placement = place(drawing.polygon, drawing.tethers, scene, fit=fit, l0_um=l0_um,
+                      source=str(path))
+    return replace(placement, reading=drawing.reading)
 
 
 @dataclass(frozen=True)
@@ -106,6 +116,7 @@ class Drawing:
     polygon: Polygon
     tethers: np.ndarray  # (n, 3): x, y, radius, l0
     units: str  # what the file was drawn in: "l0" or "mm"
+    reading: str = ""  # how its units were read, for the user: "CSS px (it states no ...)"
 
 
 def read_drawing(path, l0_um: float | None = None, units: str | None = None) -> Drawing:
@@ -130,44 +141,119 @@ def _read_drawing(path: Path, l0_um, units, data=None) -> Drawing:
 def _check_arguments(l0_um, units) -> None:
     _check_l0_um(l0_um)
     if units is not None and units not in UNITS:
-        raise DrawingError(f"units = {units!r}: choose one of {UNITS}")
+        raise DrawingError(f"--units {units!r}: choose one of {UNITS}")
 
 
 # --------------------------------------------------------------------------- placement
 
 
-def place_mould(polygon: Polygon, tethers, scene: Scene, fit: bool = False,
+FIT_MODES = ("area", "extent")  # --fit: the training moulds' area (capped by the window), or the window
+
+
+@dataclass(frozen=True)
+class Placement:
+    """A drawing placed in a scene: the mould, and how it got there.
+
+    scale: the factor the drawing was scaled by (1.0 when it keeps its size); fit: None,
+    "area" or "extent"; drawn_l0: (width, height) of the drawing before scaling, l0;
+    l0_um: the cell spacing used, if any (for lengths in mm)."""
+
+    mould: Mould
+    scale: float = 1.0
+    fit: str | None = None
+    drawn_l0: tuple[float, float] = (float("nan"), float("nan"))
+    l0_um: float | None = None
+    reading: str = "l0 (a mould file)"  # how the file's units were read
+
+    def describe(self) -> str:
+        """One line: how the units were read, the drawn and placed size, the scale factor."""
+        return f"read in {self.reading}; {self._size_text()}"
+
+    def _size_text(self) -> str:
+        width, height = self.drawn_l0
+        placed = f"{_both(width * self.scale, self.l0_um)} x {_both(height * self.scale, self.l0_um)}"
+        if self.fit is None:
+            return f"placed at its drawn size, {placed}"
+        return (f"scaled by {self.scale:.4g} (--fit {self.fit}): drawn "
+                f"{_both(width, self.l0_um)} x {_both(height, self.l0_um)}, placed {placed}")
+
+    def record(self) -> dict:
+        """JSON-safe attributes for an output's metadata."""
+        return {"fit": self.fit or "none", "fit_scale": float(self.scale),
+                "drawn_width_l0": float(self.drawn_l0[0]),
+                "drawn_height_l0": float(self.drawn_l0[1]),
+                "l0_um": None if self.l0_um is None else float(self.l0_um),
+                "units_read": self.reading}
+
+
+def window_text(scene: Scene, l0_um: float | None) -> str:
+    """The scene's window: its box, and the training moulds' largest extent, in l0 and mm."""
+    at = f" at l0 = {l0_um:g} um" if l0_um is not None else ""
+    return (f"the {scene.name!r} scene's window is {_both(scene.box, l0_um)} square{at} "
+            f"(training moulds span at most {_both(scene.max_extent * scene.box, l0_um)})")
+
+
+def _fit_factor(polygon: Polygon, scene: Scene, fit: str) -> float:
+    """The scale factor of a fit: "extent" makes the larger of width and height
+    scene.max_extent of the box (the training moulds' largest); "area" makes the area
+    scene.area_fraction of the box, capped by the extent fit so that it always fits."""
+    xmin, ymin, xmax, ymax = polygon.bounds
+    extent = scene.max_extent * float(scene.box) / max(xmax - xmin, ymax - ymin)
+    if fit == "extent":
+        return extent
+    return min(math.sqrt(scene.area_fraction * float(scene.box) ** 2 / polygon.area), extent)
+
+
+def _fit_mode(fit) -> str | None:
+    if fit is False or fit is None:
+        return None
+    if fit is True:
+        return "area"
+    if fit not in FIT_MODES:
+        raise DrawingError(f"fit = {fit!r}: choose one of {FIT_MODES} (--fit area, --fit extent)")
+    return fit
+
+
+def place_mould(polygon: Polygon, tethers, scene: Scene, fit=False,
                 l0_um: float | None = None, source: str = "mould") -> Mould:
+    """A user mould in `scene`'s box from an outline and tethers in l0 (anywhere); see
+    `place` (this returns its mould)."""
+    return place(polygon, tethers, scene, fit=fit, l0_um=l0_um, source=source).mould
+
+
+def place(polygon: Polygon, tethers, scene: Scene, fit=False, l0_um: float | None = None,
+          source: str = "mould") -> Placement:
     """A user mould in `scene`'s box from an outline and tethers in l0 (anywhere).
 
     The placement rule: the drawing keeps its size (cells have size l0) and its bounding
-    box is centred in the box, as the generator centres its moulds. With `fit`, it is
-    first scaled about that centre so that its area is scene.area_fraction of the box (the
-    training moulds' area). It is refused (InvalidMouldError naming `source`) when its
-    width or height exceeds the box, or when validate_mould refuses the placed mould.
-    `l0_um` only adds mm to the messages."""
+    box is centred in the box, as the generator centres its moulds. `fit` scales it first,
+    about that centre, keeping its aspect ratio: "extent" (the CLI's --fit extent) so that
+    its larger side is scene.max_extent of the box; "area" or True (--fit) so that its
+    area is scene.area_fraction of the box, the training moulds', but never beyond the
+    extent fit. Without a fit it is refused (InvalidMouldError naming `source`, the
+    window in l0 and mm, the scale it would need and the flags that give it) when its width
+    or height exceeds the box; with one or without, when validate_mould refuses the placed
+    mould. `l0_um` only adds mm to the messages."""
+    mode = _fit_mode(fit)
     tethers = np.asarray(tethers, dtype=np.float64).reshape(-1, 3)
     box = float(scene.box)
     if not isinstance(polygon, Polygon) or polygon.is_empty or not polygon.area > 0:
         raise InvalidMouldError(f"{source}: the outline must be a Polygon with positive area, "
                                 f"got {getattr(polygon, 'geom_type', type(polygon).__name__)}")
-    if fit:
-        factor = math.sqrt(scene.area_fraction * box**2 / polygon.area)
+    xmin, ymin, xmax, ymax = polygon.bounds
+    drawn = (xmax - xmin, ymax - ymin)
+    factor = 1.0
+    if mode is not None:
+        factor = _fit_factor(polygon, scene, mode)
         centre = _bbox_centre(polygon)
         polygon = affinity.scale(polygon, factor, factor, origin=tuple(centre))
         tethers = np.column_stack([centre + (tethers[:, :2] - centre) * factor,
                                    tethers[:, 2] * factor])
-    xmin, ymin, xmax, ymax = polygon.bounds
-    width, height = xmax - xmin, ymax - ymin
+    width, height = drawn[0] * factor, drawn[1] * factor
     if max(width, height) > box * (1 + 1e-9):
-        how = (f"scaled to the training area ({scene.area_fraction:g} of the box) it is still"
-               if fit else "it is")
-        advice = ("it is too elongated for this box" if fit else
-                  "draw it smaller, check l0_um, or fit it to the training area (fit=True)")
         raise InvalidMouldError(
-            f"{source}: {how} {_both(width, l0_um)} wide and {_both(height, l0_um)} "
-            f"high, larger than the {scene.name!r} scene's box of {_both(box, l0_um)}: "
-            f"{advice}")
+            f"{source}: it is {_both(width, l0_um)} wide and {_both(height, l0_um)} high; "
+            f"{window_text(scene, l0_um)}. {_way_forward(drawn, scene, l0_um)}")
     shift = np.array([box / 2, box / 2]) - _bbox_centre(polygon)
     polygon = affinity.translate(polygon, *shift)
     tethers = np.column_stack([tethers[:, :2] + shift, tethers[:, 2]])
@@ -176,8 +262,34 @@ def place_mould(polygon: Polygon, tethers, scene: Scene, fit: bool = False,
         validate_mould(mould)
     except InvalidMouldError as error:
         note = f" (l0 = {l0_um:g} um)" if l0_um is not None else ""
-        raise InvalidMouldError(f"{source}{note}: {error}") from error
-    return mould
+        scaled = f" (scaled by {factor:.4g}, --fit {mode})" if mode is not None else ""
+        raise InvalidMouldError(f"{source}{note}{scaled}: {error}") from error
+    return Placement(mould=mould, scale=float(factor), fit=mode,
+                     drawn_l0=(float(drawn[0]), float(drawn[1])), l0_um=l0_um)
+
+
+def _way_forward(drawn, scene: Scene, l0_um: float | None) -> str:
+    """What to do about a drawing larger than the scene's window: the scale that --fit
+    extent would apply, the cell spacing at which it would fit, and a larger scene."""
+    from condor.model.scenes import PRESETS
+
+    side = max(drawn)
+    scale = scene.max_extent * scene.box / side
+    ways = [f"Way forward: --fit extent scales it by {scale:.4g} to {scene.max_extent:g} of "
+            "the window (--fit: to the training moulds' area)"]
+    if l0_um is not None:
+        ways.append(f"or a cell spacing --l0-um {l0_um * side / (scene.max_extent * scene.box):.3g} "
+                    "(or more) keeps its shape at fewer, larger cells")
+    larger = [s for s in PRESETS.values() if s.box * scene.max_extent >= side and s.box > scene.box]
+    if larger:
+        best = min(larger, key=lambda s: s.box)
+        ways.append(f"or --scene {best.name} (window {_both(best.box, l0_um)}) to simulate it "
+                    "at its drawn size")
+    else:
+        biggest = max(PRESETS.values(), key=lambda s: s.box)
+        ways.append(f"no scene holds it at its drawn size (the largest window, --scene "
+                    f"{biggest.name}'s, is {_both(biggest.box, l0_um)})")
+    return "; ".join(ways)
 
 
 def _both(value_l0: float, l0_um: float | None) -> str:
@@ -218,7 +330,7 @@ def training_domain_check(mould: Mould, scene: Scene) -> list[str]:
     if abs(deviation) > AREA_REFUSE:
         raise OutsideTrainingDomainError(
             f"{area}, beyond the +-{AREA_REFUSE:.0%} a prediction is allowed: simulate it, or "
-            "fit it to the training area")
+            "scale it with --fit")
     if abs(deviation) > AREA_WARN:
         warnings.append(f"{area}: the prediction extrapolates (more than +-{AREA_WARN:.0%})")
     xmin, ymin, xmax, ymax = mould.polygon.bounds
@@ -268,7 +380,7 @@ def _check_l0_um(l0_um) -> None:
         return
     if isinstance(l0_um, bool) or not isinstance(l0_um, numbers.Real) \
             or not math.isfinite(l0_um) or l0_um <= 0:
-        raise DrawingError(f"l0_um = {l0_um!r} must be a positive number of micrometres "
+        raise DrawingError(f"--l0-um {l0_um!r} must be a positive number of micrometres "
                            "(the cell spacing l0)")
 
 
@@ -278,9 +390,9 @@ def _l0_per_unit(unit: str, l0_um: float | None, source: str, label: str, how: s
     if unit == "l0":
         return 1.0
     if l0_um is None:
-        raise DrawingError(f"{source} is drawn in {label} ({how}): pass l0_um, the cell spacing l0 "
-                           "in micrometres, to convert it to l0 (or declare the drawing in "
-                           "l0 if it is)")
+        raise DrawingError(f"{source} is drawn in {label} ({how}): give the cell spacing l0 "
+                           "in micrometres with --l0-um (e.g. --l0-um 16) to convert it to l0 "
+                           "(or --units l0 if it is drawn in l0)")
     return 1000.0 / float(l0_um)
 
 
@@ -291,11 +403,11 @@ def _resolve_units(stated: str | None, given: str | None, source: str, where: st
             raise DrawingError(f"{source}: {where} is {stated!r}; use one of {UNITS}")
         if given is not None and given != stated:
             raise DrawingError(f"{source} states its units ({where} = {stated!r}); "
-                               f"units = {given!r} contradicts it")
+                               f"--units {given!r} contradicts it")
         return stated
     if given is None:
         raise DrawingError(f"{source} does not state its units ({where}): state them in the "
-                           f"file, or pass units (one of {UNITS})")
+                           f"file, or pass --units (one of {UNITS})")
     return given
 
 
@@ -310,21 +422,27 @@ def _read_json(path: Path):
         raise DrawingError(f"{path} is not valid JSON: {error}") from error
 
 
-def _mould_json(path: Path, scene: Scene, fit: bool, units: str | None) -> Mould:
-    """A mould in the generator's format: already in l0 and in box coordinates."""
+def _mould_json(path: Path, scene: Scene, fit, units: str | None,
+                l0_um: float | None = None) -> Placement:
+    """A mould in the generator's format: already in l0 and in box coordinates (refitted
+    only when a fit is asked for and would change it)."""
     if units not in (None, "l0"):
-        raise DrawingError(f"{path} is a mould file, always in l0; units = {units!r} "
+        raise DrawingError(f"{path} is a mould file, always in l0; --units {units!r} "
                            "contradicts it")
     mould = load_json(path)
     if not same_length(mould.box, scene.box):
         raise InvalidMouldError(
             f"{path} is a mould for a {mould.box:g} l0 box, the {scene.name!r} scene has "
-            f"{scene.box:g} l0: pass the matching scene, or give its outline and tethers "
+            f"{scene.box:g} l0: pass the matching scene (--scene; a checkpoint trained on "
+            "it for predict), or give its outline and tethers "
             "alone (a minimal JSON) to be placed")
-    if fit and not math.isclose(mould.polygon.area, scene.area_fraction * scene.box**2,
-                                rel_tol=1e-6):
-        return place_mould(mould.polygon, mould.tethers, scene, fit=True, source=str(path))
-    return mould
+    mode = _fit_mode(fit)
+    if mode is not None and not math.isclose(_fit_factor(mould.polygon, scene, mode), 1.0,
+                                             rel_tol=1e-6):
+        return place(mould.polygon, mould.tethers, scene, fit=mode, l0_um=l0_um,
+                     source=str(path))
+    xmin, ymin, xmax, ymax = mould.polygon.bounds
+    return Placement(mould=mould, drawn_l0=(xmax - xmin, ymax - ymin), l0_um=l0_um)
 
 
 _OUTLINE_KEYS = ("outline", "holes", "tethers", "units", "comment")
@@ -471,7 +589,8 @@ def _finish(shapes: _Shapes, mm_per_unit: float, l0_um, flip_y: bool, how: str) 
     sign = -1.0 if flip_y else 1.0
     polygon = orient(affinity.scale(polygon, scale, sign * scale, origin=(0, 0)))
     tethers = tethers * [scale, sign * scale, scale]
-    return Drawing(source=source, polygon=polygon, tethers=tethers, units=unit)
+    return Drawing(source=source, polygon=polygon, tethers=tethers, units=unit,
+                   reading=f"{label} ({how})")
 
 
 def _sort_rings(source: str, rings: list, circles: list, ignored: int, tol: float) -> tuple:
@@ -625,17 +744,18 @@ def _read_svg(path: Path, units: str | None, l0_um: float | None) -> Drawing:
                               source, "data-units on <svg>")
         per_user = 1e-3 if unit == "um" else 1.0  # drawing units (l0 or mm) per user unit
         label = unit
-        how = f"data-units = {unit!r}" if declared is not None else f"units = {unit!r}"
+        how = f"data-units = {unit!r}" if declared is not None else f"--units {unit}"
     else:
         if units == "l0":
             raise DrawingError(f"{path} states a physical size (width {attrs['width']!r}, "
-                               f"height {attrs['height']!r}); units = 'l0' contradicts it "
+                               f"height {attrs['height']!r}); --units l0 contradicts it "
                                "(to draw in l0, set data-units=\"l0\" on <svg>)")
         unit, per_user = "mm", mm_per_user
-        label = "mm" if per_user == 1.0 else "user units"
+        label = ("mm" if per_user == 1.0 else "user units") if stated else "CSS px"
         how = ("its width/height are physical lengths" if stated else
-               "it states no units, so its user units are CSS px, 1/96 in; set "
-               "data-units=\"l0\" on <svg> or pass units if it is drawn in l0")
+               f"it states no units, so it is read as CSS px, 96 px an inch, "
+               f"{per_user:.4g} mm a user unit; if its numbers are mm or l0, set "
+               "data-units=\"mm\" or \"l0\" on <svg> or pass --units mm or --units l0")
     unit = "l0" if unit == "l0" else "mm"
     tol = FLATTEN_TOLERANCE_L0 / (per_user * _l0_per_unit(unit, l0_um, source, label, how))
 
@@ -731,7 +851,7 @@ def _read_dxf(path: Path, units: str | None, l0_um: float | None) -> Drawing:
     if declared is None and insunits != 0:
         if units == "l0":
             raise DrawingError(f"{path} states $INSUNITS = {insunits} (a physical unit); "
-                               f"units = 'l0' contradicts it")
+                               f"--units l0 contradicts it")
         try:
             mm_per_unit = dxfunits.conversion_factor(insunits, dxfunits.MM)
         except (KeyError, ValueError, IndexError) as error:
@@ -745,7 +865,7 @@ def _read_dxf(path: Path, units: str | None, l0_um: float | None) -> Drawing:
         mm_per_unit = 1e-3 if unit == "um" else 1.0
         unit, label = ("l0" if unit == "l0" else "mm"), unit
         how = (f"{where} = {label!r}" if declared is not None
-               else f"{where}: units = {label!r} says so")
+               else f"{where}: --units {label} says so")
     tol = FLATTEN_TOLERANCE_L0 / (mm_per_unit * _l0_per_unit(unit, l0_um, source, label, how))
 
     hidden = {layer.dxf.name.lower() for layer in doc.layers

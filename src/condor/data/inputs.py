@@ -29,6 +29,7 @@ principal axes tilt: odd under each mirror, unchanged by the transpose.
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 
 import numpy as np
 
@@ -209,17 +210,30 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     return stress.astype(np.float32)
 
 
+# Stress channels of the moulds solved last (a mould's masks and `shear` -> its channels),
+# so that a mould predicted again (design's confirmation, a user's repeated `predict`, the
+# evaluation's modes) is not solved again. At the default's 64 px an entry is 32 KiB.
+STRESS_CACHE_SIZE = 1024
+_STRESS_CACHE: "OrderedDict[bytes, np.ndarray]" = OrderedDict()
+
+
 def stress_channels(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     """(S, 2, H, W) masks -> (S, 2, H, W) stress channels ((S, 3, H, W) with `shear`), each
-    distinct mould solved once."""
+    distinct mould solved once (and kept: the last STRESS_CACHE_SIZE moulds solved are not
+    solved again)."""
     masks = np.asarray(masks)
     if masks.ndim != 4 or masks.shape[1] != 2:
         raise ValueError(f"masks must have shape (S, 2, H, W), got {masks.shape}")
-    solved: dict[bytes, np.ndarray] = {}
     out = np.empty((masks.shape[0], 3 if shear else 2) + masks.shape[2:], dtype=np.float32)
     for s, sample in enumerate(masks):
-        key = np.ascontiguousarray(sample > 0).tobytes()
-        if key not in solved:
-            solved[key] = spring_stress(sample, shear)
-        out[s] = solved[key]
+        binary = np.ascontiguousarray(sample > 0)
+        key = bytes([shear]) + repr(binary.shape).encode() + np.packbits(binary).tobytes()
+        if key in _STRESS_CACHE:
+            _STRESS_CACHE.move_to_end(key)
+        else:
+            _STRESS_CACHE[key] = spring_stress(sample, shear)
+            _STRESS_CACHE[key].setflags(write=False)
+            while len(_STRESS_CACHE) > STRESS_CACHE_SIZE:
+                _STRESS_CACHE.popitem(last=False)
+        out[s] = _STRESS_CACHE[key]
     return out

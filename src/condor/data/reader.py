@@ -87,11 +87,26 @@ def field_statistics(ds: xr.Dataset, split: str = "train", chunk: int = 64) -> p
     return pd.DataFrame({"field": FIELD_NAMES, "mean": mean, "std": std, "min": lo, "max": hi})
 
 
-def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFrame | None = None):
-    """A torch.utils.data.Dataset over the ok samples of `split` (replica 0 of each mould):
-    item k is (inputs (2, H, W) float32 0/1, fields (8, H, W) float32), fields standardised
-    per field by a `field_statistics` table when given. Samples are read lazily, one chunk
-    each, so it serves stores larger than memory (use DataLoader workers for speed)."""
+def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFrame | None = None,
+                  lattice: bool = False, n_cells: bool = False, mould_id: bool = False,
+                  expected: bool = False):
+    """A torch.utils.data.Dataset over the ok samples of `split` (replica 0 of each mould).
+
+    By default item k is (inputs (2, H, W) float32 0/1, fields (8, H, W) float32), fields
+    standardised per field by a `field_statistics` table when given. Any option makes item k a
+    dict with "inputs" and "fields" and, per option:
+
+    - lattice: "lattice" (2, H, W) float32, the mould's initial mobile and fixed cells (what
+      the default surrogate reads beside the masks; condor.data.inputs);
+    - n_cells: "n_cells", a float64 scalar tensor: the mould's cell count N_c (the density's sum);
+    - mould_id: "mould", an int64 scalar tensor;
+    - expected: "fields_mean" and "fields_std" (8, H, W) float32, the expected fields and one
+      simulation's spread about them (standardised like `fields`; the std scaled only), and
+      "n_replicas" (int64; 0, and NaN fields, for a mould simulated once: only the test
+      moulds have replicas).
+
+    Samples are read lazily, one chunk each, so it serves stores larger than memory (use
+    DataLoader workers for speed)."""
     import torch
 
     sel = select(ds, split)
@@ -99,6 +114,11 @@ def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFram
     if standardise is not None:
         mean = standardise["mean"].to_numpy(np.float32)[:, None, None]
         std = np.where(standardise["std"] > 0, standardise["std"], 1.0).astype(np.float32)[:, None, None]
+    as_dict = lattice or n_cells or mould_id or expected
+    replicated = {}
+    if expected and "replicated" in ds.coords:
+        replicated = {int(m): i for i, m in enumerate(ds["replicated"].values)}
+    shape = (ds.sizes["field"], ds.sizes["y"], ds.sizes["x"])
 
     class FieldsDataset(torch.utils.data.Dataset):
         def __len__(self):
@@ -110,7 +130,30 @@ def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFram
             fields = item["fields"].values.astype(np.float32)
             if mean is not None:
                 fields = (fields - mean) / std
-            return torch.from_numpy(inputs), torch.from_numpy(fields)
+            if not as_dict:
+                return torch.from_numpy(inputs), torch.from_numpy(fields)
+            out = {"inputs": torch.from_numpy(inputs), "fields": torch.from_numpy(fields)}
+            mould = int(item["mould"].values)
+            if lattice:
+                out["lattice"] = torch.from_numpy(item["lattice"].values.astype(np.float32))
+            if n_cells:
+                out["n_cells"] = torch.tensor(float(item["n_cells"].values), dtype=torch.float64)
+            if mould_id:
+                out["mould"] = torch.tensor(mould, dtype=torch.int64)
+            if expected:
+                where = replicated.get(mould)
+                if where is None:
+                    fm = fs = np.full(shape, np.nan, np.float32)
+                    count = 0
+                else:
+                    fm = ds["fields_mean"].isel(replicated=where).values.astype(np.float32)
+                    fs = ds["fields_std"].isel(replicated=where).values.astype(np.float32)
+                    count = int(ds["n_replicas_ok"].isel(replicated=where).values)
+                    if mean is not None:
+                        fm, fs = (fm - mean) / std, fs / std
+                out.update(fields_mean=torch.from_numpy(fm), fields_std=torch.from_numpy(fs),
+                           n_replicas=torch.tensor(count, dtype=torch.int64))
+            return out
 
     return FieldsDataset()
 
@@ -158,10 +201,15 @@ def card(store, config: dict | None = None) -> str:
         f"{attrs['seed']}; replicas per mould by split: "
         f"{json.dumps(attrs.get('data_config', {}).get('replicas'))}",
         "",
-        "## Samples",
+        "## Moulds and simulations",
         "",
-        f"{len(table)} simulations of {attrs['n_moulds']} moulds ({int((status == 'ok').sum())} "
-        "ok). Per split and state:",
+        f"{attrs['n_moulds']} moulds, {len(table)} simulations "
+        f"({int((status == 'ok').sum())} ok): a test mould is simulated several times "
+        "(replicas, for its expected fields), the others once. Per split:",
+        "",
+        _markdown(_split_counts(ds, table)),
+        "",
+        "Simulations per split and state:",
         "",
         _markdown(counts.reset_index()),
         "",
@@ -191,12 +239,26 @@ def card(store, config: dict | None = None) -> str:
         "loader = torch.utils.data.DataLoader(",
         "    condor.dataset.torch_dataset(ds, 'train', standardise=stats), batch_size=8)",
         f"# items: {ITEM_SHAPES}",
+        "# or dicts with the lattice channels, N_c, the mould id and the expected fields:",
+        "# condor.torch_dataset(ds, 'test', lattice=True, n_cells=True, mould_id=True, expected=True)",
+        "# score predictions of the test moulds against the noise-corrected expected fields:",
+        "# condor.score(raw_fields_of_the_replicated_moulds, ds)['accuracy']",
         "```",
         "",
         "Replicas: sample `s` holds replica `replica[s]` of mould `mould[s]`; samples 0..n-1 are "
         "replica 0 of moulds 0..n-1. `fields_mean` / `fields_std` along `replicated` are the "
         "expected fields and their spread. Every chunk carries a CRC32C checksum: "
         "`condor check-store --deep` verifies them.",
+        "",
+        "## Licence and citation",
+        "",
+        f"Licence: {LICENCE}",
+        "",
+        "Cite the model and the task as Andrews, Dickinson and Hague, \"Rapid prediction of "
+        "lab-grown tissue properties using deep learning\", and this dataset as: condor "
+        f"dataset, scene {scene.get('name')!r}, {attrs['n_moulds']} moulds, global seed "
+        f"{attrs['seed']}, built by condor {attrs.get('code_version')} (store format "
+        f"{attrs['format_version']}); the same configuration and seed rebuild it bit for bit.",
         "",
         "## Configuration",
         "",
@@ -206,6 +268,29 @@ def card(store, config: dict | None = None) -> str:
         "",
     ]
     return "\n".join(lines)
+
+
+# The dataset's licence as the card states it. The project has not chosen one yet (no licence
+# in pyproject.toml or the repository): the card says so rather than invent one.
+LICENCE = ("none chosen yet: the condor project states no licence for its code or data; ask "
+           "its authors before redistributing")
+
+
+def _split_counts(ds: xr.Dataset, table: pd.DataFrame) -> pd.DataFrame:
+    """Per split: moulds, simulations, ok simulations, moulds with replicas."""
+    split = np.asarray(ds["split"].values).astype(str)
+    mould = np.asarray(ds["mould"].values)
+    ok = np.asarray(ds["status"].values).astype(str) == "ok"
+    rows = []
+    for name in SPLITS:
+        here = split == name
+        if not here.any():
+            continue
+        per_mould = np.bincount(mould[here])
+        rows.append({"split": name, "moulds": int(len(np.unique(mould[here]))),
+                     "simulations": int(here.sum()), "ok simulations": int((here & ok).sum()),
+                     "moulds with replicas": int((per_mould > 1).sum())})
+    return pd.DataFrame(rows)
 
 
 def write_card(store, out_md, config: dict | None = None) -> Path:

@@ -57,7 +57,8 @@ from condor.data.fields import FIELD_NAMES
 from condor.data.inputs import LATTICE_CHANNELS
 
 FORMAT = "condor-dataset"
-FORMAT_VERSION = 3  # 3: the lattice channels (`lattice`) beside the masks
+FORMAT_VERSION = 4  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y
+# coordinates (pixel centres, l0) and CF attributes (units, long_name) on every array
 CHANNELS = ("mould", "tether")
 SPLITS = ("train", "val", "test")
 
@@ -92,7 +93,47 @@ EXPECTED_VARIABLES = ("fields_mean", "fields_std", "n_replicas_ok")
 # restore_layout rewrites) and the dataset stage (write_expected, EXPECTED_VARIABLES).
 MOULD_ARRAYS = ("inputs", "lattice", *MOULD_VARIABLES, "inputs_ready")
 SAMPLE_ARRAYS = ("fields", *SIMULATION_VARIABLES, "status")
-COORDINATES = ("sample", "channel", "cell", "field", "replicated")
+COORDINATES = ("sample", "channel", "cell", "field", "replicated", "x", "y")
+# CF attributes of every array (units "1": dimensionless; "l0": the cells' spacing, the
+# length unit of the model; the fields are kernel-weighted sums over cells, per pixel).
+_FIELDS_LONG = ("per pixel, the kernel-weighted sum over cells of P (cells), T, Sx2, Sy2, Sz2, "
+                "SxSy, SxSz, SySz (the orientation tensor s_a s_b)")
+VARIABLE_ATTRS = {
+    "sample": {"long_name": "simulation (replica 0 of moulds 0..n-1, then the extra replicas)"},
+    "channel": {"long_name": "input channel"},
+    "cell": {"long_name": "lattice channel: mobile or fixed cells"},
+    "field": {"long_name": "field name"},
+    "replicated": {"long_name": "mould id of a mould simulated with several seeds"},
+    "x": {"units": "l0", "long_name": "x of the pixel centre from the box's left edge, in cell "
+          "spacings l0", "standard_name": "projection_x_coordinate", "axis": "X"},
+    "y": {"units": "l0", "long_name": "y of the pixel centre from the box's lower edge, in cell "
+          "spacings l0", "standard_name": "projection_y_coordinate", "axis": "Y"},
+    "inputs": {"units": "1", "long_name": "input masks: mould, tether (0/1; the paper's inputs)"},
+    "lattice": {"units": "1", "long_name": "the mould's initial mobile and fixed cells, "
+                "rasterised with the fields' kernel, in units of a full FCC column"},
+    "fields": {"units": "1", "long_name": "fields of one simulation: " + _FIELDS_LONG},
+    "fields_mean": {"units": "1", "long_name": "expected fields: the mean over the mould's ok "
+                    "replicas; " + _FIELDS_LONG},
+    "fields_std": {"units": "1", "long_name": "standard deviation of one replica's fields "
+                   "about their mean (ddof 1)"},
+    "n_replicas_ok": {"units": "1", "long_name": "ok replicas of the mould"},
+    "mould": {"long_name": "mould id"}, "replica": {"long_name": "replica number (seed index)"},
+    "seed": {"long_name": "the generator's seed of the mould"},
+    "symmetry": {"long_name": "the generator's symmetry regime"},
+    "order": {"units": "1", "long_name": "rotation order of the mould's symmetry"},
+    "removal": {"long_name": "the generator's tether removal rule"},
+    "n_tethers": {"units": "1", "long_name": "tethers (posts) of the mould"},
+    "inputs_ready": {"long_name": "flag: the mould's inputs are written"},
+    "sim_seed": {"long_name": "the simulation's seed"},
+    "n_cells": {"units": "1", "long_name": "cells of the mould (N_c, the lattice's sites)"},
+    "energy": {"units": "1", "long_name": "final CONDOR energy per cell"},
+    "max_force": {"units": "1", "long_name": "largest residual force of the final state"},
+    "solver": {"long_name": "simulator"},
+    "solver_seconds": {"units": "s", "long_name": "the solver's CPU time"},
+    "hardware": {"long_name": "machine the simulation ran on"},
+    "status": {"long_name": "ok, or why the simulation failed"},
+    "split": {"long_name": "train, val or test"},
+}
 LAYOUT_VARIABLES = ("split", "mould", "replica")
 CODECS = {"compressors": [ZstdCodec(level=3), Crc32cCodec()]}
 
@@ -237,7 +278,7 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
     with quiet_zarr():
         group = zarr.open_group(tmp, mode="w-", zarr_format=3)
         group.attrs.update({
-            "format": FORMAT, "format_version": FORMAT_VERSION, "code_version": __version__,
+            "Conventions": "CF-1.10", "format": FORMAT, "format_version": FORMAT_VERSION, "code_version": __version__,
             "n_moulds": spec.n_moulds, "n_samples": spec.n_samples, "pixels": spec.pixels,
             "seed": spec.seed, "replicas": list(spec.replica_counts), **spec.attrs,
         })
@@ -249,7 +290,8 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
             fill = SAMPLE_VARIABLES[name][1] if name in SAMPLE_VARIABLES else (
                 np.nan if dtype == "float32" else 0)
             group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill,
-                               dimension_names=dims, **CODECS)
+                               dimension_names=dims, attributes=VARIABLE_ATTRS.get(name, {}),
+                               **CODECS)
         for name in LAYOUT_VARIABLES:
             group[name][:] = layout[name]
         zarr.consolidate_metadata(tmp)
@@ -266,6 +308,8 @@ def _layout_values(spec: StoreSpec, split=None) -> dict[str, np.ndarray]:
     replicated = np.flatnonzero(np.asarray(spec.replica_counts) > 1)
     if len(replicated):
         values["replicated"] = replicated.astype("int64")
+    if spec.attrs.get("pixel_size") is not None:  # pixel centres, l0
+        values["x"] = values["y"] = (np.arange(spec.pixels) + 0.5) * float(spec.attrs["pixel_size"])
     values["mould"], values["replica"] = mould_of, replica_of
     if split is not None:
         values["split"] = np.array(split)[mould_of]
@@ -276,6 +320,7 @@ def _coordinate(group, name: str, values: np.ndarray) -> None:
     arr = group.create_array(
         name, shape=values.shape, chunks=values.shape, dtype=values.dtype,
         fill_value="" if values.dtype.kind == "U" else 0, dimension_names=(name,),
+        attributes=VARIABLE_ATTRS.get(name, {}),
     )
     arr[:] = values
 
@@ -324,7 +369,8 @@ def spec_of(group: zarr.Group) -> StoreSpec:
     if len(replicas) != n_moulds or int(attrs.get("n_samples", -1)) != sum(replicas):
         raise StoreError(f"store attributes disagree: n_moulds {n_moulds}, replicas "
                          f"{len(replicas)} entries, n_samples {attrs.get('n_samples')}")
-    return StoreSpec(n_moulds, pixels, seed, ("train",) * n_moulds, {}, replicas)
+    extra = {"pixel_size": attrs["pixel_size"]} if "pixel_size" in attrs else {}
+    return StoreSpec(n_moulds, pixels, seed, ("train",) * n_moulds, extra, replicas)
 
 
 def _check_compatible(path: Path, spec: StoreSpec) -> None:

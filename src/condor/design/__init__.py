@@ -18,7 +18,7 @@ from .objectives import (EmptyRegionError, InfeasibleConstraintError, Objective,
                          Quantity, Region, UnknownObjectiveError, parse_objective)
 from .search import (DesignPrediction, DesignSearchError, SearchResult, objective_spread,
                      predict_designs, prediction_spread, search)
-from .space import DesignSpace, default_space, symmetry_group
+from .space import DesignSpace, constrained_space, default_space, symmetry_group
 
 __all__ = [
     "Confirmation", "SimulatedDesigns", "agreement", "baseline_objectives", "confirm",
@@ -28,5 +28,5 @@ __all__ = [
     "EmptyRegionError", "InfeasibleConstraintError", "Objective", "ObjectiveError", "Quantity",
     "Region", "UnknownObjectiveError", "parse_objective", "DesignPrediction",
     "DesignSearchError", "SearchResult", "objective_spread", "predict_designs",
-    "prediction_spread", "search", "DesignSpace", "default_space", "symmetry_group",
+    "prediction_spread", "search", "DesignSpace", "constrained_space", "default_space", "symmetry_group",
 ]

@@ -33,6 +33,7 @@ from tqdm.auto import tqdm
 
 from condor.data.moulds import Mould, input_channels
 from condor.model.scenes import SIGMA_L0, same_length
+from condor.surrogate.answer import spread_draws
 
 from .objectives import Objective
 from .space import DesignSpace
@@ -343,18 +344,8 @@ def objective_spread(objective: Objective, normalised: np.ndarray, spread: np.nd
     pixels further apart than the kernel. The map gives no correlations beyond that, so this
     is an approximation; the confirmation's replica spread (simulated_objective_std) checks it.
     """
-    from condor.surrogate.baselines import gaussian_blur, gaussian_matrix
-
-    normalised = np.asarray(normalised, dtype=np.float64)
-    spread = np.asarray(spread, dtype=np.float64)
-    rng = np.random.default_rng([int(seed), 3])
-    n = normalised.shape[-1]
-    kernel = gaussian_matrix(n, sigma_px)
-    unit = float(np.sqrt(np.sum(np.outer(kernel[n // 2], kernel[n // 2]) ** 2)))
-    values = []
-    for _ in range(draws):
-        z = gaussian_blur(rng.standard_normal(normalised.shape), sigma_px) / unit
-        values.append(objective.evaluate(normalised + spread * z)["objective"].to_numpy())
+    values = [objective.evaluate(draw)["objective"].to_numpy()
+              for draw in spread_draws(normalised, spread, sigma_px, draws, seed)]
     return np.std(np.array(values), axis=0, ddof=1)
 
 

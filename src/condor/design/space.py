@@ -144,6 +144,10 @@ class DesignSpace:
     min_tethers: int = 0
     shape_scale: float = 0.2  # log-radius amplitude per unit gene (before mode damping)
     vertices: int = 128
+    # A fixed footprint (shapely Polygon in box coordinates): the search then places the
+    # posts alone, inside it (from its centroid), and n_modes should be 0 (see constrained_space)
+    footprint: object = None
+    all_present: bool = False  # every tether gene places its post (presence genes ignored)
     _cache: dict = field(default_factory=dict, compare=False, repr=False, hash=False)
 
     def __post_init__(self):
@@ -269,7 +273,11 @@ class DesignSpace:
     def _footprint(self, coefficients: np.ndarray):
         """(polygon in box coordinates, origin, shrink t). The extent is cheap to test
         (numpy), the neck is not (a shapely buffer): bisect on the extent first, then, only
-        if the neck fails there, on both."""
+        if the neck fails there, on both. A fixed `footprint` is returned as it is, its origin
+        the centroid."""
+        if self.footprint is not None:
+            centre = self.footprint.centroid
+            return self.footprint, np.array([centre.x, centre.y]), 1.0
         def largest(t_high, ok):
             if ok(t_high):
                 return t_high
@@ -308,7 +316,7 @@ class DesignSpace:
         steps = np.linspace(1.0, 0.0, 41)  # candidate fractions along the ray, outside in
         reach = self.max_extent * self.box  # longer than any ray inside the footprint
         for j, (g_angle, g_radial, g_radius, g_present) in enumerate(genes):
-            if g_present <= 0:
+            if g_present <= 0 and not self.all_present:
                 continue
             phi = math.pi / 2 * g_angle + 2 * math.pi * j / max(self.n_tethers, 1)
             radius = self.min_tether_radius + (self.max_tether_radius - self.min_tether_radius) \
@@ -375,3 +383,33 @@ def default_space(scene, objective=None, **overrides) -> DesignSpace:
             settings["symmetry"] = "none"
     settings.update(overrides)
     return DesignSpace.from_scene(scene, **settings)
+
+
+def constrained_space(scene, mould, keep, objective=None) -> DesignSpace:
+    """The search's space constrained to a user's `mould` (condor.data.moulds.Mould, placed in the
+    scene's box): `keep` holds "footprint" (its outline, fixed: the search places the posts
+    alone, from the outline's centroid, and the symmetry is none) and/or "posts" (its number
+    of posts: that many tether genes, each placing one post, symmetry none; a post with no
+    room is dropped and penalised as the search's repair). Without "footprint" the outline is searched as usual."""
+    keep = set(keep)
+    unknown = keep - {"footprint", "posts"}
+    if unknown:
+        raise ValueError(f"--keep {sorted(unknown)}: choose footprint and/or posts")
+    if not keep:
+        return default_space(scene, objective)
+    settings = {}
+    tethers = np.asarray(mould.tethers, dtype=float).reshape(-1, 3)
+    if "posts" in keep:
+        settings.update(symmetry="none", n_tethers=len(tethers), min_tethers=len(tethers),
+                        all_present=True)
+        if len(tethers):  # the user's posts fit the space's radius range
+            settings["max_tether_radius_box"] = max(0.05, float(tethers[:, 2].max()) / scene.box)
+    if "footprint" in keep:
+        polygon = mould.polygon
+        xmin, ymin, xmax, ymax = polygon.bounds
+        settings.update(symmetry="none", n_modes=0, footprint=polygon,
+                        area_fraction=float(polygon.area) / scene.box**2,
+                        max_extent=max(scene.max_extent,
+                                       max(xmax - xmin, ymax - ymin) / scene.box))
+        settings.setdefault("n_tethers", max(len(tethers), 4))
+    return default_space(scene, objective, **settings)

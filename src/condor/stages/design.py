@@ -31,7 +31,8 @@ import pandas as pd
 import xarray as xr
 
 from condor import plots
-from condor.design import (confirm, dataset_baseline, default_space, design_table,
+from condor.design import (confirm, constrained_space, dataset_baseline, default_space,
+                           design_table,
                            parse_objective, predict_designs, search, simulate_designs)
 from condor.data.drawings import write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
@@ -141,36 +142,53 @@ def _out_dir(out_dir, force: bool, n_top: int) -> Path:
 
 
 def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, seed: int,
-           n_top: int, n_random: int, replicas: int, store=None, l0_um: float | None = None, solver: str | None = None,
-           your_moulds=(), force: bool = False, progress: bool | None = None) -> pd.DataFrame:
+           n_top: int, n_random: int, replicas: int, store=None, l0_um: float | None = None,
+           solver: str | None = None, your_moulds=(), force: bool = False,
+           progress: bool | None = None, keep=(), say=None) -> pd.DataFrame:
     """Search, confirm and hand over (module docstring); returns the summary row. The
     numbers have one home, the workflow config's `design:` defaults (the packaged schema),
     which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
-    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored the
-    same way, predicted and simulated, into your_moulds.csv: the designs to beat."""
+    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored
+    the same way, predicted and simulated, into your_moulds.csv: the designs to beat, and drawn
+    first in figures/designs.png. `keep`: "footprint" and/or "posts" of the first of them
+    constrain the search (condor.design.constrained_space). `say`: called with one line as
+    each phase starts (progress where no bar shows, e.g. not on a terminal)."""
+    say = say or (lambda line: log.info("%s", line))
     predictor = Predictor(checkpoint, device="cpu")
     if predictor.native != scene.pixels or predictor.box is None or \
             not same_length(predictor.box, scene.box):
         raise DesignOutputError(f"checkpoint {str(checkpoint)!r} was trained on {predictor.native} "
                                 f"px of box {predictor.box} l0, not the {scene.name!r} scene")
     parsed = parse_objective(objective, pixels=scene.pixels, max_extent=scene.max_extent)
-    space = default_space(scene, parsed)
+    if keep and not your_moulds:
+        raise DesignOutputError(f"--keep {','.join(keep)} needs your mould (--mould)")
+    space = constrained_space(scene, your_moulds[0], keep, parsed) if keep else \
+        default_space(scene, parsed)
     out = _out_dir(out_dir, force, n_top)
+    yours = None
     if your_moulds:
-        _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas, seed, solver,
-                           progress).to_csv(out / "your_moulds.csv", index=False)
+        say(f"phase 1/4: your {len(your_moulds)} mould(s): predicting and simulating "
+            f"{replicas} replica(s) each")
+        table, yours = _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas,
+                                          seed, solver, progress)
+        table.to_csv(out / "your_moulds.csv", index=False)
+    constraint = f", keeping your mould's {' and '.join(keep)}" if keep else ""
+    say(f"phase 2/4: searching {budget} designs with the surrogate{constraint}")
     result = search(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
     log.info("search: %d designs, %.0f per CPU-minute; best predicted %s = %.4g",
              result.evaluations, result.designs_per_cpu_minute, objective,
              result.ranked().iloc[0]["objective"])
     baseline = dataset_baseline(parsed, open_store(store), split="test") if store else None
+    say(f"phase 3/4: confirming the best {n_top} and {n_random} random designs by "
+        f"simulation, {replicas} replica(s) each")
     confirmation = confirm(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
                            baseline=baseline, solver=solver, progress=progress)
     table = design_table(result, confirmation, n=max(n_top, 10))
     table.to_csv(out / "designs.csv", index=False)
     confirmation.summary.to_csv(out / "summary.csv", index=False)
     result.history.to_csv(out / "search_history.csv", index=False)
+    say("phase 4/4: drawings, predictions and figures")
     best = [int(d) for d in table["design"].head(n_top)]
     moulds = result.moulds(best)
     for k, mould in enumerate(moulds, 1):
@@ -180,7 +198,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     cells = [build_lattice(m.polygon, m.tethers, scene.depth).n_cells for m in moulds]
     predicted = predict_designs(parsed, moulds, predictor, n_cells=cells)
     _write_predictions(out / "predictions.zarr", predicted, scene, best)
-    _figures(out / "figures", table, confirmation, result, predicted, objective)
+    _figures(out / "figures", table, confirmation, result, predicted, objective, yours)
     log.info("\n%s", confirmation.summary.to_string(index=False))
     return confirmation.summary
 
@@ -189,7 +207,8 @@ def _score_your_moulds(parsed, moulds, scene, predictor, replicas, seed, solver,
     """A user's moulds under the objective: predicted and simulated (replica mean)."""
     moulds = [replace(m, mould_id=YOUR_MOULD_IDS + k) for k, m in enumerate(moulds)]
     cells = [build_lattice(m.polygon, m.tethers, scene.depth).n_cells for m in moulds]
-    predicted = predict_designs(parsed, moulds, predictor, n_cells=cells).table
+    prediction = predict_designs(parsed, moulds, predictor, n_cells=cells)
+    predicted = prediction.table
     simulated = simulate_designs(parsed, moulds, scene, replicas, seed, solver=solver,
                                  progress=progress).table
     return pd.DataFrame({"mould": [k + 1 for k in range(len(moulds))],
@@ -197,7 +216,7 @@ def _score_your_moulds(parsed, moulds, scene, predictor, replicas, seed, solver,
                          "predicted_spread": predicted["predicted_spread"].to_numpy(),
                          "simulated_objective": simulated["objective"].to_numpy(),
                          "simulated_objective_std": simulated["objective_std"].to_numpy(),
-                         "n_ok": simulated["n_ok"].to_numpy()})
+                         "n_ok": simulated["n_ok"].to_numpy()}), prediction
 
 
 def _write_predictions(path: Path, predicted, scene: Scene, designs) -> None:
@@ -216,17 +235,22 @@ def _write_predictions(path: Path, predicted, scene: Scene, designs) -> None:
         ds.to_zarr(path, mode="w-")
 
 
-def _figures(folder: Path, table, confirmation, result, predicted, objective: str) -> None:
+def _figures(folder: Path, table, confirmation, result, predicted, objective: str,
+             yours=None) -> None:
     plots.design_confirmation(confirmation.table, confirmation.summary,
                               folder / "confirmation.png", title=objective)
     plots.design_search_history(result.history, folder / "search_history.png")
     rows = []
-    for k in range(len(predicted.inputs)):
-        images = [("mould", predicted.inputs[k][0] + 2 * predicted.inputs[k][1]),
-                  ("P", predicted.raw[k][0]), ("T", predicted.raw[k][1]),
-                  ("Sx2", predicted.raw[k][2]), ("Sy2", predicted.raw[k][3])]
-        if predicted.spread is not None:
-            images += [("Sx2 spread", predicted.spread[k][2])]
-        rows.append((f"design {k + 1}", images))
-    plots.image_grid(rows, folder / "designs.png", f"the best designs for {objective}: "
+    shown = [("yours", yours)] if yours is not None else []
+    for label, prediction in shown + [("design", predicted)]:
+        for k in range(len(prediction.inputs)):
+            images = [("mould", prediction.inputs[k][0] + 2 * prediction.inputs[k][1]),
+                      ("P", prediction.raw[k][0]), ("T", prediction.raw[k][1]),
+                      ("Sx2", prediction.raw[k][2]), ("Sy2", prediction.raw[k][3])]
+            if prediction.spread is not None:
+                images += [("Sx2 spread", prediction.spread[k][2])]
+            value = prediction.table["objective"].iloc[k]
+            rows.append((f"{label} {k + 1} ({value:.3g})", images))
+    plots.image_grid(rows, folder / "designs.png", f"{'your moulds and ' if shown else ''}the "
+                     f"best designs for {objective} (predicted objective in brackets): "
                      "predicted fields and reproducibility", cmaps={"mould": "Greys"})

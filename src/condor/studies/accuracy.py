@@ -180,3 +180,53 @@ def accuracy_tables(ensemble, answers, seed: int = 0) -> tuple[pd.DataFrame, pd.
         stats[~ok] = np.nan
         statistics += _statistic_rows(answer.method, answer.family, stats, replica_stats, seed)
     return (pd.DataFrame(accuracy), pd.DataFrame(statistics, columns=list(STATISTICS_COLUMNS)))
+
+
+def score(predictions, dataset, method: str = "predictions", simulated: bool = False,
+          seed: int = 0) -> dict:
+    """Score your predictions against a condor dataset's expected fields, the finite-replica
+    noise removed, with 95% bootstrap intervals over moulds: the same estimators and tables as
+    the report's accuracy study (`accuracy_tables`), so the numbers are comparable with it.
+
+    predictions: raw (un-normalised) fields of the dataset's replicated moulds (the test
+      moulds), either an array (M, 8, H, W) in the order of `dataset["replicated"]`, or a
+      dict {mould id: (8, H, W)} for any of them. Fields are normalised by their own density
+      sum (the paper's rule for predicted fields); `simulated=True` normalises them by each
+      mould's N_c instead (for a simulator's answers).
+    dataset: a store path or condor.open_dataset(...).
+
+    Returns {"accuracy": DataFrame, "statistics": DataFrame, "moulds": ids}: accuracy rows
+    `field_error` (RMS over the 8 normalised fields against the expected fields, noise
+    removed) with field_error_lo/hi, the plain error and per-field errors, beside the dataset
+    solver's own rows ("single simulation" is the noise ceiling); statistics rows: per
+    whole-mould statistic, r against the expected statistic with r_lo/r_hi, r_ceiling, bias
+    with bias_lo/bias_hi (columns as STATISTICS_COLUMNS)."""
+    from condor.studies.reference import reference_ensemble
+
+    if isinstance(predictions, dict):
+        wanted = [int(m) for m in predictions]
+        ensemble = reference_ensemble(dataset, moulds=wanted)
+        raw = np.stack([np.asarray(predictions[m], dtype=np.float64) for m in ensemble.moulds])
+    else:
+        ensemble = reference_ensemble(dataset)
+        raw = np.asarray(predictions, dtype=np.float64)
+        import xarray as xr
+
+        ds = dataset if isinstance(dataset, xr.Dataset) else None
+        if ds is None:
+            from condor.data.store import open_store
+
+            ds = open_store(dataset)
+        order = [int(m) for m in ds["replicated"].values] if "replicated" in ds.coords else []
+        if raw.shape[0] != len(order):
+            raise ValueError(f"predictions hold {raw.shape[0]} moulds; the dataset has "
+                             f"{len(order)} replicated (test) moulds, in the order of "
+                             "dataset['replicated'] (or pass a dict {mould id: fields})")
+        raw = raw[[order.index(int(m)) for m in ensemble.moulds]]
+    expected_shape = ensemble.raw.shape[:1] + ensemble.raw.shape[2:]
+    if raw.shape != expected_shape:
+        raise ValueError(f"predictions have shape {raw.shape}, the dataset's moulds need "
+                         f"{expected_shape} (raw fields, 8 per mould)")
+    answer = Answer(method, "yours", raw, np.full(len(raw), np.nan), predicted=not simulated)
+    accuracy, statistics = accuracy_tables(ensemble, [answer], seed=seed)
+    return {"accuracy": accuracy, "statistics": statistics, "moulds": ensemble.moulds}

@@ -18,6 +18,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import xarray as xr
 
 from condor.model.energy import random_orientations
 from condor.data.fields import normalise
@@ -96,7 +97,7 @@ def reference_ensemble(store, moulds=None, max_moulds: int | None = None) -> Ens
     """The ok replicas of `moulds` (default: every replicated mould) from the store, every ok
     replica of each (NaN-padded to the largest count: Ensemble; a mould with fewer than
     MIN_REPLICAS ok replicas is left out). ValueError when no mould is left."""
-    ds = open_store(store)
+    ds = store if isinstance(store, xr.Dataset) else open_store(store)
     mould_of = ds["mould"].values
     replica_of = ds["replica"].values
     ok = ds["status"].values.astype(str) == "ok"
