@@ -35,6 +35,7 @@ need_root() {
 install_packages() {
     need_root install
     command -v apt-get >/dev/null || die "no apt-get: install SLURM (slurmctld, slurmd, munge) with your system's packages"
+    apt-get update -q
     DEBIAN_FRONTEND=noninteractive apt-get install -y -q --no-install-recommends slurm-wlm munge
 }
 
