@@ -72,8 +72,9 @@ def snakemake(workdir, *extra):
 
 def start(workdir, *extra, log):
     """A SLURM run in the background; its whole log goes to `log`."""
-    return subprocess.Popen(snakemake(workdir, *SLURM, *extra), stdout=open(log, "w"),
-                            stderr=subprocess.STDOUT, start_new_session=True)
+    with open(log, "w") as out:  # the child keeps its own copy of the file
+        return subprocess.Popen(snakemake(workdir, *SLURM, *extra), stdout=out,
+                                stderr=subprocess.STDOUT, start_new_session=True)
 
 
 def finish(proc, log, timeout=LIMIT_S):
