@@ -308,7 +308,7 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channel
 def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypatch):
     """The stress solve is not repeated per epoch: training preloads its moulds and the
     validation after every epoch reuses its inputs."""
-    from condor.surrogate import data
+    from condor.surrogate import samples as data
 
     calls = []
     solve = data.stress_channels

@@ -94,8 +94,28 @@ def _split_from_condor(match: re.Match) -> str:
     return "\n".join(lines)
 
 
+FROM_PACKAGE = re.compile(r"^(?P<indent>\s*)from condor\.(?P<package>\w+) import "
+                          r"(?P<names>[^#(\n]+?)(?P<tail>\s*#.*)?$", re.M)
+
+
+def _from_package(match: re.Match) -> str:
+    """`from condor.<package> import <module>` of a module moved within its package."""
+    items, moved = [], False
+    for item in (part.strip() for part in match["names"].split(",")):
+        name, _, alias = (x.strip() for x in item.partition(" as "))
+        new = MOVES.get(f"{match['package']}.{name}")
+        if new and new.rpartition(".")[0] == match["package"]:
+            item, moved = f"{new.rpartition('.')[2]} as {alias or name}", True
+        items.append(item)
+    if not moved:
+        return match[0]
+    return f"{match['indent']}from condor.{match['package']} import {', '.join(items)}" \
+        f"{match['tail'] or ''}"
+
+
 def rewrite(text: str, path: str) -> str:
     text = FROM_CONDOR.sub(_split_from_condor, text)
+    text = FROM_PACKAGE.sub(_from_package, text)
     for old, new in MOVES.items():
         dotted = re.escape(old)
         if old in ALIASED:  # imports only: `condor.dataset.x` in prose and code is the alias
