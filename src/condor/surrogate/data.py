@@ -346,9 +346,9 @@ def read_samples(ds, positions, read):
     except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
         bad = {p: _unreadable(ds, p) for p in np.atleast_1d(positions)}
         bad = {p: arrays for p, arrays in bad.items() if arrays}
-        where = "; ".join(f"sample {i}, array {', '.join(bad[p])}"
-                          for p, i in zip(bad, _named(ds, list(bad)))) if bad else \
-            f"sample(s) {_named(ds, positions)}"
+        where = f"sample(s) {_named(ds, list(bad) or positions)}" + (" (" + "; ".join(
+            f"sample {i}, array {', '.join(bad[p])}" for p, i in zip(bad, _named(ds, list(bad))))
+            + ")" if bad else "")
         raise DataError(f"cannot read {where} of the dataset ({type(err).__name__}: "
                         f"{str(err)[:200]}); condor check-store --deep lists the damaged chunks "
                         "and moves them aside, and the next workflow run rebuilds them") from None
