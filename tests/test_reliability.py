@@ -1,7 +1,8 @@
 """Nothing lost, nothing mixed: the workflow and the CLI under a careless user's mistakes.
 
-Each test copies one finished tiny dataset (built once per module, `--until dataset`) and
-makes one mistake on the copy."""
+Each test copies the session's finished tiny run (`tiny_run`, tests/conftest.py: 16 moulds in
+4 batches of 4; test moulds 4, 6, 7 and 9 with 4 replicas, samples 16-27) and makes one
+mistake on the copy."""
 
 import os
 import shutil
@@ -16,12 +17,13 @@ import pytest
 import xarray as xr
 
 from condor.data.store import check_store
-from test_workflow import REPO, run, snakemake_args
+from test_cli_surrogate import _without_write_permission
+from test_workflow import REPO, TINY, run, snakemake_args
 
 pytestmark = pytest.mark.slow
 
-# The tiny scene, cut down: 8 moulds in 4 batches, 2 test moulds (0 and 4) of 4 replicas
-# (the fewest the studies take: condor.studies.reference.MIN_REPLICAS).
+# The tiny scene, cut down, for runs of their own: 8 moulds in 4 batches, 2 test moulds of 4
+# replicas (the fewest the studies take: condor.studies.reference.MIN_REPLICAS).
 SMALL = {"n_moulds": 8, "batch_size": 2, "split": {"test": 2},
          "simulation": {"replicas": {"test": 4}}}
 
@@ -35,19 +37,14 @@ def small_args(workdir, *extra):
             *extra)
 
 
-@pytest.fixture(scope="module")
-def finished(tmp_path_factory):
-    workdir = tmp_path_factory.mktemp("finished")
-    run(workdir, *small_args(workdir, "--until", "dataset"))
-    return workdir
-
-
 @pytest.fixture
-def folder(finished, tmp_path):
-    """A private copy of the finished folder (mtimes kept, so nothing looks stale)."""
-    copy = tmp_path / "work"
-    shutil.copytree(finished, copy, symlinks=True)
-    return copy
+def folder(tiny_copy):
+    """A private copy of the finished tiny run (mtimes kept, so nothing looks stale)."""
+    return tiny_copy
+
+
+def tiny_args(*extra):
+    return (*TINY, *extra)
 
 
 def store(workdir):
@@ -60,7 +57,7 @@ def fields_of(workdir):
 
 def test_forcerun_init_store_keeps_every_sample(folder):
     before = fields_of(folder)
-    run(folder, *small_args(folder, "--until", "dataset", "--forcerun", "init_store"))
+    run(folder, *tiny_args("--until", "dataset", "--forcerun", "init_store"))
     assert (check_store(store(folder))["state"] == "ok").all()
     np.testing.assert_array_equal(fields_of(folder), before)
 
@@ -70,14 +67,14 @@ def test_store_created_but_not_recorded_is_kept(folder):
     the store exists, the job's output does not. The rerun keeps the store and finishes."""
     before = fields_of(folder)
     (folder / "results" / "dataset.json").unlink()
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert "rule init_store" in proc.stderr
     np.testing.assert_array_equal(fields_of(folder), before)
 
 
 @pytest.mark.parametrize("change", ["seed=7", "n_moulds=10", "simulation={'solver': 'anneal'}"])
 def test_a_changed_data_key_stops_before_anything_runs(folder, change):
-    proc = run(folder, *small_args(folder, "-n", "--config", change), check=False)
+    proc = run(folder, *tiny_args("-n", "--config", change), check=False)
     out = proc.stdout + proc.stderr
     assert proc.returncode != 0 and "Nothing to be done" not in out
     key = change.split("=")[0] if "solver" not in change else "solver"
@@ -105,7 +102,7 @@ def test_a_deleted_fields_chunk_is_found_and_repaired(folder):
     check = subprocess.run([sys.executable, "-m", "condor.cli", "check-store", str(store(folder))],
                            capture_output=True, text=True)
     assert check.returncode == 1 and "corrupt: 3" in check.stdout
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert proc.stderr.count("rule fields:") == 1  # only the batch that lost it
     assert (check_store(store(folder))["state"] == "ok").all()
     np.testing.assert_array_equal(fields_of(folder), before)
@@ -113,10 +110,10 @@ def test_a_deleted_fields_chunk_is_found_and_repaired(folder):
 
 def test_a_deleted_simulation_and_status_chunk_are_repaired(folder):
     before = fields_of(folder)
-    (store(folder) / "status" / "c" / "4").unlink()  # a 1-d array's chunk is a file
-    for sim in (folder / "results" / "sims" / "batch_0002").glob("*.npz"):
+    (store(folder) / "status" / "c" / "2").unlink()  # a 1-d array's chunk is a file
+    for sim in (folder / "results" / "sims" / "batch_0000").glob("*.npz"):
         sim.unlink()
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert proc.stderr.count("rule simulate:") == 1 and proc.stderr.count("rule fields:") == 1
     assert (check_store(store(folder))["state"] == "ok").all()
     np.testing.assert_array_equal(fields_of(folder), before)
@@ -125,7 +122,7 @@ def test_a_deleted_simulation_and_status_chunk_are_repaired(folder):
 def test_a_second_run_on_the_same_folder_stops_at_once(folder):
     (folder / "results" / "dataset_summary.csv").unlink()  # leave work to do
     lock = folder / "results" / ".condor.lock"
-    first = subprocess.Popen(snakemake_args(folder, *small_args(folder, "--until", "sample_figure"),
+    first = subprocess.Popen(snakemake_args(folder, *tiny_args("--until", "sample_figure"),
                                             cores=1),
                              stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
                              start_new_session=True)
@@ -135,13 +132,13 @@ def test_a_second_run_on_the_same_folder_stops_at_once(folder):
             time.sleep(0.1)
         assert lock.exists(), "the first run never took the lock"
         os.killpg(first.pid, signal.SIGSTOP)  # held mid-run, however little work was left
-        second = run(folder, *small_args(folder, "--until", "sample_figure"), check=False)
+        second = run(folder, *tiny_args("--until", "sample_figure"), check=False)
         assert second.returncode != 0 and "in use by another run" in second.stderr
     finally:
         os.killpg(first.pid, signal.SIGKILL)  # a kill leaves the lock file behind ...
         first.wait()
     assert lock.exists()
-    run(folder, *small_args(folder, "--until", "sample_figure"))  # ... found stale, taken over
+    run(folder, *tiny_args("--until", "sample_figure"))  # ... found stale, taken over
     assert not lock.exists()
 
 
@@ -225,7 +222,7 @@ def damage(workdir, chunk, how):
 
 @pytest.mark.parametrize("chunk, how", [
     ("fields/c/3/0/0/0", "delete"),   # the file, not the folder c/3
-    ("fields/c/9/0/0/0", "truncate"),  # a replica's
+    ("fields/c/17/0/0/0", "truncate"),  # a replica's (mould 4's third)
     ("inputs/c/2/0/0/0", "delete"),   # else the sample reads as a blank mould
     ("lattice/c/5/0/0/0", "delete"),
 ])
@@ -236,7 +233,7 @@ def test_a_deleted_or_truncated_chunk_file_is_found_and_repaired(folder, chunk, 
     check = check_store_cli(folder)
     assert check.returncode == 1 and f"corrupt: {sample}" in check.stdout
     assert f"sample {sample} " in check.stdout and f"array {array}:" in check.stdout
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     # the batch's fields job writes the lost chunk again, lost inputs from the batch's moulds
     # JSON: no simulation reruns (their timings would differ)
     assert jobs(proc) == {"fields": 1, "dataset": 1}
@@ -244,8 +241,8 @@ def test_a_deleted_or_truncated_chunk_file_is_found_and_repaired(folder, chunk, 
 
 
 @pytest.mark.parametrize("chunks", [
-    ("fields_mean/c/1/0/0/0", "split/c/1", "mould/c/6"),
-    ("n_replicas_ok/c/0", "field/c/0", "replica/c/9"),
+    ("fields_mean/c/1/0/0/0", "split/c/1", "mould/c/14"),
+    ("n_replicas_ok/c/0", "field/c/0", "replica/c/19"),
 ])
 def test_damaged_derived_and_layout_arrays_are_found_and_repaired(folder, chunks):
     """Else the evaluation's MAE changes, training drops a mould, reading them raises."""
@@ -257,24 +254,24 @@ def test_damaged_derived_and_layout_arrays_are_found_and_repaired(folder, chunks
     for chunk in chunks:
         array = chunk.split("/")[0]
         assert (f"array {array}:" if array != "n_replicas_ok" else "not written") in check.stdout
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert jobs(proc) == {"dataset": 1}
     assert store_files(folder) == before
 
 
 def test_corrupt_chunks_deep_finds_are_set_aside_and_repaired(folder):
     before = store_files(folder)
-    for chunk in ("fields/c/3/0/0/0", "energy/c/11", "fields_mean/c/0/0/0/0"):
+    for chunk in ("fields/c/3/0/0/0", "energy/c/19", "fields_mean/c/0/0/0/0"):
         damage(folder, chunk, "flip")
     assert check_store_cli(folder).returncode == 0  # the frames are whole: only decoding sees it
     check = check_store_cli(folder, "--deep")
     assert check.returncode == 1 and "Traceback" not in check.stderr
     for where in ("sample 3 (mould 3 replica 0), array fields",
-                  "sample 11 (mould 4 replica 1), array energy", "mould 0, array fields_mean"):
+                  "sample 19 (mould 6 replica 1), array energy", "mould 4, array fields_mean"):
         assert where in check.stdout
     assert "moved the damaged chunk files" in check.stdout
     assert (folder / "results" / "dataset.zarr.damaged" / "fields" / "c" / "3").is_dir()
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert jobs(proc) == {"fields": 2, "dataset": 1}
     assert store_files(folder) == before
     assert check_store_cli(folder, "--deep").returncode == 0
@@ -284,7 +281,41 @@ def test_a_corrupt_inputs_ready_flag_is_written_again_and_the_summary_kept(folde
     summary = folder / "results" / "dataset_summary.csv"
     before, table = store_files(folder), summary.read_text()
     damage(folder, "inputs_ready/c/4", "flip")
-    proc = run(folder, *small_args(folder, "--until", "dataset"))
+    proc = run(folder, *tiny_args("--until", "dataset"))
     assert jobs(proc) == {"fields": 1, "dataset": 1}
     assert store_files(folder) == before and summary.read_text() == table
-    assert jobs(run(folder, *small_args(folder, "--until", "dataset"))) == {}  # no loop
+    assert jobs(run(folder, *tiny_args("--until", "dataset"))) == {}  # no loop
+
+
+@pytest.mark.parametrize("read_only", ["results", "results/figures"])
+def test_a_read_only_results_folder_is_one_line(folder, read_only):
+    """Issue 33, item 12: the lock, or a job removing its old output, met a PermissionError
+    and printed its stack frames."""
+    (folder / "results" / "report.html").unlink()  # leave work to do
+    (folder / "results" / "figures" / "mould_gallery.png").unlink()
+    target = folder / read_only
+    target.chmod(0o555)
+    try:
+        prefix = _without_write_permission(target)
+        proc = subprocess.run([*prefix, *snakemake_args(folder, *TINY)], capture_output=True,
+                              text=True)
+    finally:
+        target.chmod(0o755)
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    lines = [line for line in proc.stderr.splitlines() if line.startswith("condor: ")]
+    assert len(lines) == 1 and "cannot be written" in lines[0] and read_only in lines[0]
+    assert not (folder / "results" / "report.html").exists()
+    assert not (folder / "results" / ".condor.lock").exists()
+
+
+def test_training_on_a_corrupt_chunk_names_the_sample_and_the_array(folder, tmp_path):
+    """Issue 33, item 7: a checksum error with neither the sample nor the array named."""
+    damage(folder, "fields/c/3/0/0/0", "flip")
+    for argv in (["train", "--store", store(folder), "--checkpoint", tmp_path / "m.pt",
+                  "--epochs", "1", "--base", "8", "--threads", "1"],
+                 ["evaluate", "--store", store(folder), "--checkpoint",
+                  folder / "results" / "models" / "unet.pt", "--out", tmp_path / "ev"]):
+        proc = condor(*argv, cwd=tmp_path)
+        assert proc.returncode == 2 and "Traceback" not in proc.stderr
+        assert "sample 3, array fields" in proc.stderr and "check-store --deep" in proc.stderr
+    assert not (tmp_path / "m.pt").exists()

@@ -1,7 +1,8 @@
 """The workflow end to end on the tiny scene, through the `snakemake` command line.
 
-Each test runs in its own temporary directory (`--directory`), with the repository's
-Snakefile, profile and configs.
+The finished tiny run is built once per session (`tiny_run`, tests/conftest.py); every other
+run here has its own temporary directory (`--directory`), with the repository's Snakefile,
+profile and configs.
 """
 
 import base64
@@ -71,20 +72,19 @@ def assert_store_complete(store, n):
 TINY = ("--configfile", str(REPO / "config" / "tiny.yaml"))
 
 
-def test_end_to_end_tiny(tmp_path):
-    run(tmp_path, *TINY)
-    ds = assert_store_complete(store_of(tmp_path), 16)
+def test_end_to_end_tiny(tiny_run, tiny_copy):
+    ds = assert_store_complete(store_of(tiny_run), 16)
     inputs = ds["inputs"].values
     assert inputs.shape == (16 + 4 * 3, 2, 32, 32)  # 4 test moulds with 4 replicas each
     assert not (inputs[:, 0] & inputs[:, 1]).any()  # tether pixels are never mould pixels
     assert ds.attrs["scene"]["name"] == "tiny"
     assert set(ds["split"].values.astype(str)) <= {"train", "val", "test"}
     for figure in ("mould_gallery.png", "samples.png"):
-        assert (tmp_path / "results" / "figures" / figure).stat().st_size > 5000
-    report = (tmp_path / "results" / "report.html").read_text()
+        assert (tiny_run / "results" / "figures" / figure).stat().st_size > 5000
+    report = (tiny_run / "results" / "report.html").read_text()
     assert report.count("data:image/png;base64,") >= 5  # figures are embedded, not linked
     # both accuracy tables, with every column the readers consume
-    evaluation = tmp_path / "results" / "evaluation"
+    evaluation = tiny_run / "results" / "evaluation"
     accuracy = pd.read_csv(evaluation / "accuracy.csv")
     assert {"method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
             "field_error_hi"} <= set(accuracy.columns)
@@ -109,9 +109,9 @@ def test_end_to_end_tiny(tmp_path):
     samples = np.flatnonzero(ds["mould"].values == mould)
     np.testing.assert_allclose(ds["fields_mean"].values[0],
                                ds["fields"].values[samples].astype(float).mean(axis=0), rtol=1e-5)
-    # Nothing left to do: a second run schedules no job.
-    assert "Nothing to be done" in run(tmp_path, *TINY).stderr
-    assert_cli_trains_the_workflows_model(tmp_path)
+    # Nothing left to do: a second run (on a copy: the run is shared) schedules no job.
+    assert "Nothing to be done" in run(tiny_copy, *TINY).stderr
+    assert_cli_trains_the_workflows_model(tiny_copy)
 
 
 def assert_cli_trains_the_workflows_model(workdir):
@@ -132,70 +132,90 @@ def assert_cli_trains_the_workflows_model(workdir):
     assert all(torch.equal(ours["generator"][k], theirs["generator"][k]) for k in ours["generator"])
 
 
-def test_same_config_gives_identical_fields(tmp_path):
-    first, second = tmp_path / "a", tmp_path / "b"
-    for workdir in (first, second):
-        run(workdir, *overlay(workdir, n_moulds=4, batch_size=2, split={"test": 1}), "--until", "dataset")
-    a, b = (xr.open_zarr(store_of(w)) for w in (first, second))
-    assert np.array_equal(a["fields"].values, b["fields"].values, equal_nan=True)
-    assert np.array_equal(a["inputs"].values, b["inputs"].values)
-    # byte-identical chunks, not just equal values
-    for chunk in sorted((store_of(first) / "fields").rglob("c/*/*/*/*")):
-        twin = store_of(second) / chunk.relative_to(store_of(first))
-        assert chunk.read_bytes() == twin.read_bytes()
-
-
 def incomplete_outputs(workdir):
-    """Names of outputs Snakemake still marks incomplete (.snakemake/incomplete/<b64 path>)."""
+    """Outputs Snakemake still marks incomplete (.snakemake/incomplete/<b64 path>), as paths
+    relative to the working directory."""
     folder = workdir / ".snakemake" / "incomplete"
-    names = set()
+    paths = set()
     for marker in folder.rglob("*") if folder.exists() else ():
         try:
-            names.add(Path(base64.urlsafe_b64decode(marker.name).decode()).name)
+            paths.add(Path(base64.urlsafe_b64decode(marker.name).decode()).as_posix())
         except (ValueError, UnicodeDecodeError):
             continue
-    return names
+    return paths
 
 
-def test_kill_and_resume(tmp_path):
-    """SIGKILL the workflow part-way several times; the rerun completes every sample and
-    leaves batches that had finished before the kills untouched."""
-    extra = (*overlay(tmp_path, n_moulds=16, batch_size=2, split={"test": 2}), "--until", "dataset")
-    done_dir = tmp_path / "results" / "fields"
-    finished_before: dict[str, float] = {}
-    for kill in range(3):
+def store_chunks(workdir, arrays=("fields", "inputs", "lattice")):
+    root = store_of(workdir)
+    return {p.relative_to(root): p.read_bytes() for a in arrays for p in sorted((root / a).rglob("*"))
+            if p.is_file()}
+
+
+def test_kill_and_resume_gives_the_uninterrupted_store(request, tmp_path):
+    """SIGKILL the dataset stage at three points: part-way through a batch's simulations,
+    part-way through a batch's writes into the store, and just after a batch finished. The
+    rerun completes every sample, leaves the batches that had finished untouched, and gives
+    the same store, chunk for chunk, as the uninterrupted run of the same config (`tiny_run`,
+    built in another folder)."""
+    extra = (*TINY, "--until", "dataset")
+    results = tmp_path / "results"
+    n_batches = 4  # tiny.yaml: 16 moulds, 4 a batch; mould 4k opens batch k (sample 4k)
+
+    def running(prefix):
+        """Batches whose `prefix` output (sims, fields) a running job has not finished."""
+        return {int(p.split("batch_")[1][:4]) for p in incomplete_outputs(tmp_path)
+                if p.startswith(f"results/{prefix}/batch_")}
+
+    def finished_batches():
+        return {m.name for m in (results / "fields").glob("*.json")} - {
+            Path(p).name for p in incomplete_outputs(tmp_path) if p.startswith("results/fields/")}
+
+    def mid_simulate():  # a simulate job has saved a simulation, and has more to do
+        return any(list((results / "sims" / f"batch_{b:04d}").glob("*.npz")) for b in running("sims"))
+
+    def mid_fields():  # a fields job has written its batch's first sample into the store
+        return any((store_of(tmp_path) / "status" / "c" / str(4 * b)).exists()
+                   for b in running("fields"))
+
+    def one_more_finished(count):
+        return lambda: len(finished_batches()) > count
+
+    finished_before: dict[str, int] = {}
+    for kill, when in enumerate(("mid-simulate", "mid-fields", "after a batch")):
         proc = subprocess.Popen(snakemake_args(tmp_path, *extra, cores=1), stdout=subprocess.DEVNULL,
                                 stderr=subprocess.DEVNULL, start_new_session=True)
-        deadline = time.time() + 240
-        target = len(finished_before) + 1
-        while time.time() < deadline and proc.poll() is None:
-            finished = {m.name for m in done_dir.glob("*.json")} - incomplete_outputs(tmp_path)
-            if len(finished) >= target:
-                break
-            time.sleep(0.2)
-        time.sleep(0.3 * kill)  # land the kill at different points of a job
+        point = {"mid-simulate": mid_simulate, "mid-fields": mid_fields,
+                 "after a batch": one_more_finished(len(finished_before))}[when]
+        while proc.poll() is None and not point():
+            time.sleep(0.02)
         os.killpg(proc.pid, signal.SIGKILL)
         proc.wait()
-        in_flight = incomplete_outputs(tmp_path)
-        for marker in done_dir.glob("*.json"):
+        assert proc.returncode == -signal.SIGKILL, f"the run ended before the kill {when}"
+        in_flight = {Path(p).name for p in incomplete_outputs(tmp_path) if "/fields/" in p}
+        for marker in (results / "fields").glob("*.json"):
             # A job killed after writing its output but before Snakemake recorded it as
             # complete is legitimately redone; every other finished batch must be kept.
             if marker.name not in in_flight:
                 finished_before.setdefault(marker.name, marker.stat().st_mtime_ns)
-    assert finished_before, "the workflow finished no batch before being killed"
-    assert len(finished_before) < 8, "the kills came too late to interrupt anything"
+    assert 0 < len(finished_before) < n_batches
     proc = run(tmp_path, *extra)
     assert_store_complete(store_of(tmp_path), 16)
     for name, mtime in finished_before.items():
-        assert (done_dir / name).stat().st_mtime_ns == mtime, f"{name} was recomputed"
+        assert (results / "fields" / name).stat().st_mtime_ns == mtime, f"{name} was recomputed"
     # the rerun only ran the missing batches
     rerun_jobs = len(re.findall(r"^(?:local)?rule fields:", proc.stderr, re.M))
-    assert rerun_jobs == 8 - len(finished_before)
+    assert rerun_jobs == n_batches - len(finished_before)
     summary = {}
-    for marker in done_dir.glob("*.json"):
+    for marker in (results / "fields").glob("*.json"):
         summary.update(json.loads(marker.read_text()))
     moulds = sorted({int(k.split("/")[0]) for k in summary})
     assert moulds == list(range(16))  # none missing, none duplicated
+    # the same config gives the same data, byte for byte, killed or not, in another folder
+    # (the shared run asked for only now: this test need not wait for it to start)
+    tiny_run = request.getfixturevalue("tiny_run")
+    resumed, uninterrupted = store_chunks(tmp_path), store_chunks(tiny_run)
+    assert resumed.keys() == uninterrupted.keys()
+    assert all(resumed[k] == uninterrupted[k] for k in uninterrupted)
 
 
 def test_bad_config_stops_with_named_key(tmp_path):

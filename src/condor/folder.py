@@ -104,7 +104,25 @@ class RunLock:
         return held
 
     def acquire(self) -> None:
-        """Take the lock; FolderError naming the holder when a live run has it."""
+        """Take the lock; FolderError naming the holder when a live run has it, or the folder
+        when it cannot be written."""
+        results = self.path.parent
+        try:
+            self._acquire()
+        except PermissionError as err:
+            raise FolderError(f"results folder {str(results)!r} cannot be written "
+                              f"(permission denied: {err.filename}); is it read-only? Make it "
+                              "writable or point `results` at another folder") from None
+        # its stage folders too (figures/, models/, ...): else a job fails with a traceback
+        read_only = [entry.path for entry in os.scandir(results)
+                     if entry.is_dir(follow_symlinks=False) and not os.access(entry.path, os.W_OK)]
+        if read_only:
+            self.release()
+            raise FolderError(f"results folder {str(results)!r} holds folders that cannot be "
+                              f"written: {', '.join(sorted(read_only))}; is it read-only? Make "
+                              "them writable or point `results` at another folder")
+
+    def _acquire(self) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         for _ in range(3):
             try:

@@ -17,7 +17,8 @@ from condor.measures.metrics import (best_worst, correlation_table, mae_frame,  
                             paper_r, statistics_frame)
 
 from .baselines import fit_baselines
-from .samples import FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, usable_samples
+from .samples import (FIELD_NAMES, check_dataset, dataset_pixel_size, model_inputs, read_samples,
+                      usable_samples)
 from .predict import Predictor
 
 
@@ -51,10 +52,11 @@ def evaluate_predictions(pred, true, sample_ids, pixel_size: float, method: str,
 # --- the whole evaluation ------------------------------------------------------------------
 
 def _arrays(ds, indices) -> tuple[np.ndarray, np.ndarray, list]:
-    sel = ds.isel(sample=indices)
-    ids = list(sel["sample"].values) if "sample" in sel.coords else list(indices)
-    return (np.asarray(sel["inputs"].values, dtype=np.float32),
-            np.asarray(sel["fields"].values, dtype=np.float32), ids)
+    ids = list(ds["sample"].values[indices]) if "sample" in ds.coords else list(indices)
+    inputs, fields = read_samples(ds, indices, lambda sel: (
+        np.asarray(sel["inputs"].values, dtype=np.float32),
+        np.asarray(sel["fields"].values, dtype=np.float32)))
+    return inputs, fields, ids
 
 
 def _test_arrays(ds, split: str):

@@ -42,13 +42,20 @@ class DataError(ValueError):
     """Training or evaluation data that cannot be used; the message names the samples."""
 
 
+def _unreadable(ds, position) -> list[str]:
+    """The arrays of sample `position` that cannot be read (a corrupt or lost chunk)."""
+    sel = ds.isel(sample=int(position))
+    bad = []
+    for name in ("inputs", "fields"):
+        try:
+            np.asarray(sel[name].values)
+        except Exception:
+            bad.append(name)
+    return bad
+
+
 def _readable(ds, position) -> bool:
-    try:
-        sel = ds.isel(sample=int(position))
-        np.asarray(sel["inputs"].values), np.asarray(sel["fields"].values)
-        return True
-    except Exception:
-        return False
+    return not _unreadable(ds, position)
 
 
 def _named(ds, positions) -> list:
@@ -337,10 +344,14 @@ def read_samples(ds, positions, read):
     try:
         return read(ds.isel(sample=positions))
     except Exception as err:  # zarr/numcodecs raise many types for a corrupt chunk
-        bad = [p for p in np.atleast_1d(positions) if not _readable(ds, p)]
-        raise DataError(f"cannot read sample(s) {_named(ds, bad or positions)} of the "
-                        f"dataset ({type(err).__name__}: {str(err)[:200]}); condor "
-                        "check-store --deep lists the corrupt samples") from None
+        bad = {p: _unreadable(ds, p) for p in np.atleast_1d(positions)}
+        bad = {p: arrays for p, arrays in bad.items() if arrays}
+        where = f"sample(s) {_named(ds, list(bad) or positions)}" + (" (" + "; ".join(
+            f"sample {i}, array {', '.join(bad[p])}" for p, i in zip(bad, _named(ds, list(bad))))
+            + ")" if bad else "")
+        raise DataError(f"cannot read {where} of the dataset ({type(err).__name__}: "
+                        f"{str(err)[:200]}); condor check-store --deep lists the damaged chunks "
+                        "and moves them aside, and the next workflow run rebuilds them") from None
 
 
 def data_fingerprint(ds, selections: dict, kind: str = "mask", replica_mean: bool = False,
