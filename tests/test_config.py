@@ -32,13 +32,13 @@ OVERLAYS = ["tiny.yaml", "paper.yaml"]
 
 
 def test_the_default_run_is_the_schemas_defaults():
-    """config.yaml shows keys to change, each at the schema's default: the default run (640
-    moulds, 80 test moulds with 4 replicas, the faithful solver, the `unet` preset) is the
+    """config.yaml shows keys to change, each at the schema's default: the default run (400
+    moulds, 60 test moulds with 4 replicas, the faithful solver, the `unet` preset) is the
     schema's."""
     config = Config.load(CONFIG_DIR / "config.yaml")
     assert config == Config.default()
     assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"]) == \
-        (640, 80, 4)
+        (400, 60, 4)
     assert config.solver()[0] == "relaxed_anneal"
     assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
 

@@ -244,7 +244,8 @@ def fidelity(config: Config, checkpoints: dict, out_csv) -> pd.DataFrame:
     if reference is not None:
         moulds, ref_fields, _, label = reference
         splits = config.splits()
-        held = [i for i, m in enumerate(moulds) if m < len(splits) and splits[m] != "train"]
+        # a reference mould beyond n_moulds is not in the dataset: held out too
+        held = [i for i, m in enumerate(moulds) if m >= len(splits) or splits[m] != "train"]
         rows = []
         for name, path in checkpoints.items() if held else ():
             predictor = Predictor(path, device="cpu")
