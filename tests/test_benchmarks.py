@@ -30,6 +30,8 @@ SMOKE = {
     "bench_surrogate": (["--repeats", "1", "--batch", "2", "--threads", "1"], "s/mould"),
     "bench_design": (["--scene", "tiny", "--budget", "20", "--repeats", "1"], "designs"),
     "bench_workflow_overhead": (["--moulds", "6", "--repeats", "1", "--sizes", "6"], "job"),
+    # the tiny run's checkpoint (the shared tiny run, tests/conftest.py)
+    "bench_predict": (["{checkpoint}", "--moulds", "2", "--repeats", "1"], "ms a mould"),
 }
 
 
@@ -63,17 +65,20 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path):
     if "argparse" not in text:
         pytest.skip(f"{script.name} has no argparse: --help would run its workload")
     done = subprocess.run([sys.executable, str(script), "--help"], cwd=REPO, capture_output=True,
-                          text=True, timeout=120)
+                          text=True)
     assert done.returncode == 0, f"{script.name} --help failed:\n{done.stderr[-2000:]}"
     assert "usage:" in done.stdout
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize("script", BENCHMARKS, ids=_id)
-def test_benchmark_runs_on_the_tiny_scene(script: Path, tmp_path):
+def test_benchmark_runs_on_the_tiny_scene(script: Path, tmp_path, request):
     args, word = SMOKE[script.stem]
+    if "{checkpoint}" in args:
+        checkpoint = request.getfixturevalue("tiny_run") / "results" / "models" / "unet.pt"
+        args = [str(checkpoint) if a == "{checkpoint}" else a for a in args]
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1"}
     done = subprocess.run([sys.executable, str(script), *args], cwd=tmp_path,
-                          capture_output=True, text=True, timeout=600, env=env)
+                          capture_output=True, text=True, env=env)
     assert done.returncode == 0, f"{script.name} failed:\n{done.stderr[-3000:]}"
     assert word in done.stdout, done.stdout[-2000:]
