@@ -221,6 +221,16 @@ def _csv(inputs, key: str) -> pd.DataFrame:
     return pd.read_csv(_existing(inputs[key], REPORT_INPUTS[key]))
 
 
+def _against_ceiling(row, ceiling) -> str:
+    """'closer', 'farther' or 'as close': a field error's 95% interval against the noise
+    ceiling's (one simulation's), resolved only when the intervals do not overlap."""
+    if row.field_error_hi < ceiling.field_error_lo:
+        return "closer"
+    if row.field_error_lo > ceiling.field_error_hi:
+        return "farther"
+    return "as close"
+
+
 def _interval(value, lo, hi, digits: int = 3) -> str:
     if not np.isfinite(value):
         return ""
@@ -244,12 +254,10 @@ def accuracy_verdict(accuracy: pd.DataFrame) -> str:
              f"[{c.field_error_lo:.3g}, {c.field_error_hi:.3g}] about the expected fields "
              f"(RMS, normalised fields; {int(c.n_moulds)} test moulds)."]
     for row in accuracy[accuracy["family"] == "surrogate"].itertuples():
-        if row.field_error_hi < c.field_error_lo:
-            where = "closer to the average organisation than one simulation is"
-        elif row.field_error_lo > c.field_error_hi:
-            where = "farther from the average organisation than one simulation is"
-        else:
-            where = "as close to the average organisation as one simulation, within the intervals"
+        where = {"closer": "closer to the average organisation than one simulation is",
+                 "farther": "farther from the average organisation than one simulation is",
+                 "as close": "as close to the average organisation as one simulation, within "
+                             "the intervals"}[_against_ceiling(row, c)]
         words.append(f"The surrogate {row.method} ({_interval(row.field_error, row.field_error_lo, row.field_error_hi)}, "
                      f"{row.cpu_s_per_mould * 1e3:.3g} ms per mould) is {where}.")
     anneals = accuracy[accuracy["family"] == "anneal"]
@@ -409,12 +417,10 @@ def headline(accuracy_test: pd.DataFrame, statistics_test: pd.DataFrame,
                  f"{_interval(error.field_error, error.field_error_lo, error.field_error_hi)} on "
                  f"all {n} test moulds; one simulation (the noise ceiling): "
                  f"{_interval(ceiling.field_error, ceiling.field_error_lo, ceiling.field_error_hi)}"))
-    if error.field_error_hi < ceiling.field_error_lo:
-        where = "closer to the expected organisation than one simulation"
-    elif error.field_error_lo > ceiling.field_error_hi:
-        where = "farther from the expected organisation than one simulation"
-    else:
-        where = "as close to the expected organisation as one simulation"
+    where = {"closer": "closer to the expected organisation than one simulation",
+             "farther": "farther from the expected organisation than one simulation",
+             "as close": "as close to the expected organisation as one simulation"}[
+        _against_ceiling(error, ceiling)]
     cost = ceiling.cpu_s_per_mould / error.cpu_s_per_mould if error.cpu_s_per_mould > 0 else np.nan
     rows.append(("Time a mould", f"{error.cpu_s_per_mould * 1e3:.3g} ms (one thread); one "
                  f"simulation {ceiling.cpu_s_per_mould:.3g} s" +
