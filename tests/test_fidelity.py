@@ -70,6 +70,30 @@ def test_reference_runs_resume_pack_and_load(tmp_path):
         load_reference("tiny", 2026, 6, folder=folder)
 
 
+def test_packing_adds_to_the_product_and_a_lost_cache_loses_no_run(tmp_path):
+    import json
+    import shutil
+    from condor.studies.paper_reference import reference_file, reference_rung
+    scene = get_scene("tiny")
+    cache, folder = tmp_path / "cache", tmp_path / "product"
+    first = run_reference(cache, scene, 2026, 5, 20, 0)
+    pack_mould(cache, scene, 2026, 5, [20], 3, {"commit": "a"}, folder)
+    shutil.rmtree(cache)  # a new machine: the cache is gone, the product is not
+    second = run_reference(cache, scene, 2026, 5, 20, 1)
+    pack_mould(cache, scene, 2026, 5, [20], 3, {"commit": "b"}, folder)
+    runs = load_reference("tiny", 2026, 5, folder=folder)
+    assert [r.run for r in runs] == [0, 1]
+    assert [r.energy_per_cell for r in runs] == [first.energy_per_cell, second.energy_per_cell]
+    with np.load(reference_file("tiny", 2026, 5, folder)) as data:
+        meta = json.loads(str(data["meta"]))
+    assert [r["commit"] for r in meta["runs"]] == ["a", "b"]  # each run keeps its own
+    fields, energies = reference_rung(scene, 2026, 5, 20, folder)
+    assert len(fields) == 2 and fields[1].shape == (8, scene.pixels, scene.pixels)
+    assert energies == [first.energy_per_cell, second.energy_per_cell]
+    assert reference_rung(scene, 2026, 5, 40, folder) == ([], [])
+    assert reference_rung(scene, 2026, 6, 20, folder) == ([], [])
+
+
 def test_fidelity_table_scores_solvers_against_the_shipped_reference(tmp_path):
     from condor.studies.fidelity import fidelity_table
     scene = get_scene("tiny")

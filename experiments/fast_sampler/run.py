@@ -36,10 +36,9 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
 from condor.studies.fidelity import fidelity_row  # noqa: E402
-from condor.studies.paper_reference import budget_tag, cached_rung, mould_of, scene_fields  # noqa: E402
+from condor.studies.paper_reference import budget_tag, mould_of, reference_rung, scene_fields  # noqa: E402
 
 CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
-REF_CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
 
 
 def run_method(spec: str, scene, mould, seed: int) -> SimResult:
@@ -93,7 +92,6 @@ def main(argv=None) -> int:
     ap.add_argument("--seeds", type=int, default=4, help="replicas of each method")
     ap.add_argument("--reference", type=float, nargs="+", default=[1e5],
                     help="reference rungs (moves per cell)")
-    ap.add_argument("--reference-runs", type=int, default=3)
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
@@ -102,7 +100,7 @@ def main(argv=None) -> int:
     moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
     refs = {}
     for budget in a.reference:
-        f, e = map(list, zip(*(cached_rung(REF_CACHE, scene, a.seed, m, budget, a.reference_runs)
+        f, e = map(list, zip(*(reference_rung(scene, a.seed, m, budget)
                                  for m in a.moulds)))
         keep = [i for i, x in enumerate(f) if len(x) >= 2]
         refs[budget] = (keep, f, e)

@@ -2,11 +2,13 @@
 of workers at once (each claims a run with a lock file), one thread each, niced.
 
   python experiments/paper_reference/run.py --scene default --moulds 468 302 27 128 553 143 \
-      392 557 --rungs 1e5 1e6 --runs 3 --cache ~/.cache/condor/paper_reference
+      392 557 --rungs 1e5 1e6 --runs 3
 
-Finished runs are SimResult files in the cache; a running one keeps its anneal checkpoint
-beside it (`condor.studies.paper_reference`). Kill a worker at any time; start it again to
-resume. The order is rung by rung; within a rung, run k of every mould before run k + 1
+Each finished run is added to the shipped product (src/condor/reference/, tables.pack) at
+once, and kept as a SimResult file in the cache; a running one keeps its anneal checkpoint
+beside it, every 5 minutes (`condor.studies.paper_reference`). Kill a worker at any time;
+start it again to resume. The cache defaults to experiments/paper_reference/cache/, whose
+checkpoints are committed when a session ends, so that a ladder spans sessions and machines. The order is rung by rung; within a rung, run k of every mould before run k + 1
 (--order run) or every run of a mould before the next mould (--order mould).
 """
 
@@ -24,6 +26,9 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.studies.paper_reference import run_path, run_reference  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from tables import CACHE, pack  # noqa: E402
 
 
 def claim(path: Path) -> bool:
@@ -54,8 +59,7 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3, help="seeds per rung")
     ap.add_argument("--order", choices=("run", "mould"), default="run",
                     help="within a rung: run k of every mould first, or every run of a mould")
-    ap.add_argument("--cache", type=Path,
-                    default=Path.home() / ".cache" / "condor" / "paper_reference")
+    ap.add_argument("--cache", type=Path, default=CACHE)
     a = ap.parse_args(argv)
     os.nice(10)
     scene = get_scene(a.scene)
@@ -77,6 +81,7 @@ def main(argv=None) -> int:
                 r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
                 log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
                     f"{r.seconds:.0f} CPU s")
+                log(f"packed into {pack(a.cache, scene, a.seed, mould, [budget], a.runs)}")
             finally:
                 path.with_name(path.name + ".lock").unlink(missing_ok=True)
     return 0

@@ -3,12 +3,14 @@
   python experiments/paper_reference/tables.py --moulds 468 302 143 557 27 128 553 392 \
       --rungs 1e5 1e6 [--pack]
 
-Writes experiments/paper_reference/ladder.csv: for each rung below the top, its distance to
+Writes experiments/paper_reference/ladder_<scene>.csv from the shipped data product
+(src/condor/reference/): for each rung below the top, its distance to
 the next rung up (noise-corrected, RMS over the 8 normalised fields, bootstrap over moulds),
 the replica noise of the upper rung, the cell-averaged orientations and energies, and
 whether the pair is unresolved by the bar (upper 95% bound <= 0.5 x the noise). Only moulds
-with >= 2 finished runs at both rungs count. --pack writes src/condor/reference/ (one .npz
-per mould, every finished run of every rung, with the commit and the kernel as provenance).
+with >= 2 finished runs at both rungs count. --pack first adds the run cache's finished runs
+to src/condor/reference/ (one .npz per mould, every run of every rung, each with its commit and
+kernel); run.py does this itself as each run finishes.
 """
 
 from __future__ import annotations
@@ -24,10 +26,19 @@ from condor.model.anneal import KERNEL
 from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
-from condor.studies.paper_reference import budget_tag, cached_rung, pack_mould
+from condor.studies.paper_reference import budget_tag, pack_mould, reference_rung
 
 HERE = Path(__file__).resolve().parent
-CACHE = Path.home() / ".cache" / "condor" / "paper_reference"
+CACHE = HERE / "cache"  # run.py's default
+
+
+def pack(cache, scene, seed, mould, rungs, runs):
+    """Add a mould's finished cached runs to the product, with this commit and kernel."""
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                            cwd=HERE).stdout.strip()
+    return pack_mould(cache, scene, seed, mould, rungs, runs,
+                      {"kernel": KERNEL, "commit": commit,
+                       "made_by": "experiments/paper_reference/run.py"})
 
 
 def main(argv=None) -> int:
@@ -38,11 +49,17 @@ def main(argv=None) -> int:
     ap.add_argument("--rungs", type=float, nargs="+", required=True)
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--pack", action="store_true")
+    ap.add_argument("--cache", type=Path, default=CACHE)
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
     rows = []
     rungs = sorted(a.rungs)
-    data = {b: [cached_rung(CACHE, scene, a.seed, m, b, a.runs) for m in a.moulds] for b in rungs}
+    if a.pack:
+        for m in a.moulds:
+            out = pack(a.cache, scene, a.seed, m, rungs, a.runs)
+            if out is not None:
+                print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
+    data = {b: [reference_rung(scene, a.seed, m, b) for m in a.moulds] for b in rungs}
     for lower, upper in zip(rungs, rungs[1:]):
         keep = [i for i in range(len(a.moulds))
                 if len(data[lower][i][0]) >= 2 and len(data[upper][i][0]) >= 2]
@@ -62,15 +79,6 @@ def main(argv=None) -> int:
         out = HERE / f"ladder_{scene.name}.csv"
         pd.DataFrame(rows).to_csv(out, index=False, float_format="%.5g")
         print(f"wrote {out}")
-    if a.pack:
-        commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                                cwd=HERE).stdout.strip()
-        for m in a.moulds:
-            out = pack_mould(CACHE, scene, a.seed, m, rungs, a.runs,
-                             {"kernel": KERNEL, "commit": commit,
-                              "made_by": "experiments/paper_reference/run.py"})
-            if out is not None:
-                print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
     return 0
 
 

@@ -12,6 +12,7 @@ anneal's checkpoint beside it while it runs: a killed ladder loses at most
 
 from __future__ import annotations
 
+import fcntl
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -78,20 +79,6 @@ def scene_fields(state, scene: Scene) -> np.ndarray:
                                  scene.pixels, scene.sigma), len(state.positions))
 
 
-def cached_rung(cache, scene: Scene, dataset_seed: int, mould_id: int, budget: float, runs: int):
-    """The finished ok runs 0..runs-1 of a mould's rung in the run cache: (fields, energies
-    per cell), lists of equal length (empty when none has finished)."""
-    fields, energy = [], []
-    for k in range(runs):
-        path = run_path(cache, scene, dataset_seed, mould_id, budget, k)
-        if path.exists():
-            r = SimResult.load(path)
-            if r.status == "ok":
-                fields.append(scene_fields(r, scene))
-                energy.append(r.energy_per_cell)
-    return fields, energy
-
-
 # --- the shipped data product ---------------------------------------------------------------
 # One .npz per (scene, dataset seed, mould) under REFERENCE_DIR, holding every finished run of
 # every rung packed: positions and orientations quantised to int16 (POS_QUANTUM l0, 1/32767),
@@ -110,33 +97,50 @@ def reference_file(scene_name: str, dataset_seed: int, mould_id: int, folder=Non
 
 def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, runs: int,
                provenance: dict, folder=None) -> Path | None:
-    """Pack the finished ok runs of `mould_id` at `budgets` (each with its seed) into its
-    reference file; None when none has finished."""
-    arrays, meta = {}, {"scene": scene.to_dict(), "dataset_seed": int(dataset_seed),
-                        "mould": int(mould_id), "runs": [], **provenance}
-    for budget in budgets:
-        for k in range(runs):
-            path = run_path(cache, scene, dataset_seed, mould_id, budget, k)
-            if not path.exists():
-                continue
-            r = SimResult.load(path)
-            key = f"anneal{budget_tag(budget)}_k{k}"
-            meta["runs"].append({"key": key, "budget": float(budget), "run": k,
-                                 "seed": int(r.seed), "status": r.status,
-                                 "energy_per_cell": r.energy_per_cell, "cpu_seconds": r.seconds,
-                                 "evaluations": r.info.get("evaluations"),
-                                 "max_force": r.info.get("max_force")})
-            if r.status != "ok":
-                continue
-            arrays[f"{key}_pos"] = np.round(r.positions / POS_QUANTUM).astype(np.int16)
-            arrays[f"{key}_ori"] = np.round(r.orientations * _ORI_SCALE).astype(np.int16)
-            arrays[f"{key}_tension"] = r.tension.astype(np.float16)
-            arrays["fixed"] = r.fixed
-    if not arrays:
-        return None
+    """Add the finished runs 0..runs-1 of `mould_id` at `budgets` in the run cache (each with
+    its seed, and `provenance`) to its reference file, keeping every run it already holds that
+    the cache lacks: the product, not the cache, is the ladder's record, so a lost cache loses
+    no shipped run. None when neither holds a run. Writers of one file take turns (a lock
+    file), and the file is replaced atomically."""
     out = reference_file(scene.name, dataset_seed, mould_id, folder)
     out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, meta=np.array(json.dumps(meta)), **arrays)
+    with open(out.with_name(out.name + ".lock"), "w") as lock:
+        fcntl.flock(lock, fcntl.LOCK_EX)
+        runs_meta, arrays = {}, {}
+        if out.exists():
+            with np.load(out, allow_pickle=False) as data:
+                old = json.loads(str(data["meta"]))
+                shared = {k: v for k, v in old.items()  # provenance a file once kept file-wide
+                          if k not in ("scene", "dataset_seed", "mould", "runs")}
+                for r in old["runs"]:
+                    runs_meta[r["key"]] = {**shared, **r}
+                arrays = {name: data[name] for name in data.files if name != "meta"}
+        for budget in budgets:
+            for k in range(runs):
+                path = run_path(cache, scene, dataset_seed, mould_id, budget, k)
+                if not path.exists():
+                    continue
+                r = SimResult.load(path)
+                key = f"anneal{budget_tag(budget)}_k{k}"
+                runs_meta[key] = {"key": key, "budget": float(budget), "run": k,
+                                  "seed": int(r.seed), "status": r.status,
+                                  "energy_per_cell": r.energy_per_cell, "cpu_seconds": r.seconds,
+                                  "evaluations": r.info.get("evaluations"),
+                                  "max_force": r.info.get("max_force"), **provenance}
+                if r.status != "ok":
+                    continue
+                arrays[f"{key}_pos"] = np.round(r.positions / POS_QUANTUM).astype(np.int16)
+                arrays[f"{key}_ori"] = np.round(r.orientations * _ORI_SCALE).astype(np.int16)
+                arrays[f"{key}_tension"] = r.tension.astype(np.float16)
+                arrays["fixed"] = r.fixed
+        if not runs_meta:
+            return None
+        meta = {"scene": scene.to_dict(), "dataset_seed": int(dataset_seed),
+                "mould": int(mould_id),
+                "runs": sorted(runs_meta.values(), key=lambda r: (r["budget"], r["run"]))}
+        tmp = out.with_name(out.stem + ".tmp.npz")
+        np.savez_compressed(tmp, meta=np.array(json.dumps(meta)), **arrays)
+        tmp.replace(out)
     return out
 
 
@@ -182,6 +186,16 @@ def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: fl
                 orientations=ori / np.linalg.norm(ori, axis=1, keepdims=True),
                 tension=data[f"{key}_tension"].astype(np.float64), fixed=data["fixed"]))
     return out
+
+
+def reference_rung(scene: Scene, dataset_seed: int, mould_id: int, budget: float, folder=None):
+    """The shipped ok runs of a mould's rung: (normalised fields at the scene's grid, energies
+    per cell), lists of equal length; empty when the product holds none of that rung."""
+    try:
+        runs = load_reference(scene.name, dataset_seed, mould_id, budget, folder)
+    except FileNotFoundError:
+        return [], []
+    return [r.fields(scene) for r in runs], [r.energy_per_cell for r in runs]
 
 
 def reference_moulds(scene_name: str, dataset_seed: int, folder=None) -> list[int]:
