@@ -373,6 +373,26 @@ def test_point_labels_overlap_neither_each_other_nor_the_points(tmp_path):
     plt.close(fig)
 
 
+def test_headline_and_verdict_say_how_far_the_surrogate_is_from_the_paper():
+    fidelity = pd.concat([fidelity_table(), pd.DataFrame([{
+        "method": "surrogate unet", "scene": "default", "reference": "anneal 1e6", "n_moulds": 8,
+        "n_seeds": 1, "distance": 0.107, "distance_lo": 0.078, "distance_hi": 0.132,
+        "replica_noise": 0.22, "evaluations_per_mould": np.nan}])], ignore_index=True)
+    every = accuracy_table(surrogate=(0.1, 0.09, 0.11)).assign(n_moulds=24)
+    numbers, words = report.headline(every, statistics_table(n=24, bias=0.004),
+                                     pd.DataFrame(columns=["method", "n_moulds"]), fidelity,
+                                     "unet")
+    answer = dict(zip(numbers["question"], numbers["answer"]))["Distance to the paper's CONDOR"]
+    assert "the surrogate (unet) 0.107 [0.078, 0.132]" in answer
+    assert "unet lies 0.107 from the paper's CONDOR, within one simulation's scatter" in words
+    far = fidelity.assign(distance_hi=[0.08, 0.37, 0.3])
+    assert "beyond one simulation's scatter" in report.headline(
+        every, statistics_table(n=24, bias=0.004), pd.DataFrame(columns=["method", "n_moulds"]),
+        far, "unet")[1]
+    text = report.fidelity_verdict(fidelity)
+    assert "surrogate unet lands 0.107 [0.078, 0.132]" in text and "nan" not in text
+
+
 def test_dataset_line_names_the_tether_free_test_moulds_replicas():
     summary = pd.DataFrame({"mould": [0, 1, 1], "state": ["ok", "ok", "failed"]})
     plain = Config.default(simulation={"replicas": {"test": 8, "test_tether_free": None}})

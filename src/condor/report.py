@@ -346,10 +346,11 @@ def fidelity_verdict(fidelity: pd.DataFrame) -> str:
         state = ("not resolved from it" if row.distance_hi <= SAME_STATES * row.replica_noise
                  else "resolved from it")
         name = f"the dataset's solver ({row.method})" if i == 0 else row.method
+        cost = (f" at {row.evaluations_per_mould:,.0f} evaluations a mould"
+                if np.isfinite(row.evaluations_per_mould) else "")  # a surrogate evaluates none
         words.append(f"{name} lands {_interval(row.distance, row.distance_lo, row.distance_hi)}"
                      f" from its expected fields (upper bound {ratio:.2f} x one simulation's "
-                     f"scatter {row.replica_noise:.3f}; {state}) at "
-                     f"{row.evaluations_per_mould:,.0f} evaluations a mould")
+                     f"scatter {row.replica_noise:.3f}; {state}){cost}")
     first = fidelity.iloc[0]
     return (f"Fidelity to the paper's CONDOR ({first['reference']}, {int(first['n_moulds'])} "
             f"test moulds x {int(first['n_seeds'])} seeds): " + "; ".join(words) + ".")
@@ -457,14 +458,23 @@ def headline(accuracy_test: pd.DataFrame, statistics_test: pd.DataFrame,
     else:
         first = fidelity.iloc[0]
         resolved = first.distance_hi > 0.5 * first.replica_noise
-        rows.append(("Distance to the paper's CONDOR",
-                     f"the dataset's solver ({first.method}) "
-                     f"{_interval(first.distance, first.distance_lo, first.distance_hi)} from the "
-                     f"reference anneals' expected fields; one simulation's scatter "
-                     f"{first.replica_noise:.3f} ({int(first.n_moulds)} moulds)"))
+        answer = (f"the dataset's solver ({first.method}) "
+                  f"{_interval(first.distance, first.distance_lo, first.distance_hi)} from the "
+                  f"reference anneals' expected fields")
         verdicts.append("the dataset's solver is " + ("resolved from" if resolved else
                                                        "not resolved from")
                         + " the paper's CONDOR")
+        surrogates = fidelity[fidelity["method"].astype(str).str.startswith("surrogate")]
+        for row in surrogates.itertuples():
+            name = str(row.method).removeprefix("surrogate ")
+            answer += (f"; the surrogate ({name}) "
+                       f"{_interval(row.distance, row.distance_lo, row.distance_hi)}")
+            verdicts.append(f"{name} lies {row.distance:.3g} from the paper's CONDOR, "
+                            + ("within" if row.distance_hi < row.replica_noise else "beyond")
+                            + " one simulation's scatter")
+        rows.append(("Distance to the paper's CONDOR",
+                     f"{answer}; one simulation's scatter {first.replica_noise:.3f} "
+                     f"({int(first.n_moulds)} moulds)"))
     frame = pd.DataFrame(rows, columns=["question", "answer"])
     return frame, "Verdict: " + "; ".join(verdicts) + "."
 
