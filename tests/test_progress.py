@@ -21,3 +21,20 @@ def test_bar_on_a_terminal_and_silence_in_a_log(monkeypatch):
     monkeypatch.setattr(sys, "stderr", log)
     assert list(progress(range(5), desc="simulate")) == list(range(5))
     assert log.getvalue() == ""
+
+
+def test_a_jobs_log_holds_condors_lines_not_ezdxfs(tmp_path):
+    import logging
+
+    import ezdxf
+
+    from condor.stages import setup_logging
+    log = tmp_path / "job.log"
+    try:
+        setup_logging(log)
+        ezdxf.new().saveas(tmp_path / "x.dxf")  # ezdxf logs "creating ACAD_..." at INFO
+        logging.getLogger("condor").info("phase 1/4")
+    finally:
+        logging.getLogger().handlers.clear()
+    text = log.read_text()
+    assert "phase 1/4" in text and "ACAD" not in text

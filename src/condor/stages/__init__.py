@@ -21,6 +21,8 @@ def setup_logging(logfile: str | Path | None = None) -> None:
         handlers.append(logging.FileHandler(logfile, mode="w"))
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(message)s", handlers=handlers,
                         force=True)
+    # ezdxf logs each DXF it writes (65 lines of "creating ACAD_... dictionary" a design job)
+    logging.getLogger("ezdxf").setLevel(logging.WARNING)
 
 
 def start_job(snakemake) -> Config:
