@@ -138,8 +138,9 @@ def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, r
         meta = {"scene": scene.to_dict(), "dataset_seed": int(dataset_seed),
                 "mould": int(mould_id),
                 "runs": sorted(runs_meta.values(), key=lambda r: (r["budget"], r["run"]))}
-        tmp = out.with_name(out.stem + ".tmp.npz")
-        np.savez_compressed(tmp, meta=np.array(json.dumps(meta)), **arrays)
+        tmp = out.with_name(out.name + ".tmp")  # not *.npz: reference_moulds globs those
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
         tmp.replace(out)
     return out
 
