@@ -266,7 +266,9 @@ def summarise(moulds: pd.DataFrame, seed: int = 0) -> pd.DataFrame:
     spread_ratio and coverage_90, the field error (RMS over moulds) and the noise ceiling, and
     the median of pixel_spread_ratio (the replicas' RMS standard deviation over the tissue
     against the map's), each with its 95% bootstrap interval over moulds: the columns of
-    condor.findings.OUT_OF_DOMAIN_COLUMNS, in order, then pixel_spread_ratio."""
+    condor.findings.OUT_OF_DOMAIN_COLUMNS, in order, then pixel_spread_ratio; then, per
+    statistic, the medians over moulds of its z and spread ratio (z_<statistic>,
+    spread_ratio_<statistic>): its spread can err the other way from the pooled figure."""
     rows = []
     for kind in [k for k in KINDS if k in set(moulds["kind"])]:
         group = moulds[moulds["kind"] == kind]
@@ -282,6 +284,10 @@ def summarise(moulds: pd.DataFrame, seed: int = 0) -> pd.DataFrame:
         column = "pixel_spread_ratio"
         row[column], row[f"{column}_lo"], row[f"{column}_hi"] = \
             est.bootstrap_interval(group[column].dropna().to_numpy(), _median, seed=seed)
+        for name in STATISTICS:  # each statistic's own: the pooled figures mix them
+            z2 = group[f"{name}_z2"].dropna().to_numpy()
+            row[f"z_{name}"] = float(np.median(np.sqrt(np.maximum(z2, 0)))) if len(z2) else np.nan
+            row[f"spread_ratio_{name}"] = float(group[f"{name}_ratio"].median())
         rows.append(row)
     return pd.DataFrame(rows)
 
