@@ -17,7 +17,7 @@ REPO = Path(__file__).resolve().parents[1]
 
 def test_every_shipped_finding_has_its_provenance_and_its_experiment_folder_exists():
     loaded = findings.load_findings()
-    assert {"more_moulds", "paper_ladder"} <= set(loaded)
+    assert {"more_moulds", "paper_ladder", "out_of_domain"} <= set(loaded)
     for finding in loaded.values():
         assert (REPO / finding.experiment / "README.md").is_file(), finding.experiment
         assert re.fullmatch(r"[0-9a-f]{7,40}", finding.commit), finding.commit
@@ -75,3 +75,48 @@ def test_the_report_states_no_measured_finding_as_a_constant():
     source = (REPO / "src" / "condor" / "report.py").read_text()
     assert "PAPER_LADDER" not in source and "MORE_MOULDS" not in source
     assert "docs/data" not in source
+    answer = (REPO / "src" / "condor" / "surrogate" / "answer.py").read_text()
+    assert "OUT_OF_DOMAIN_MEASURED" not in answer and "dog-bone" not in answer
+
+
+def test_the_out_of_domain_table_names_domain_table_counts_and_its_groups():
+    from condor.data.moulds import generate_mould
+    from condor.model.scenes import get_scene
+    from condor.surrogate.answer import domain_table, outside_counts
+
+    scene = get_scene("default")
+    properties = set(domain_table(generate_mould(1, 0, box=scene.box), scene)["property"])
+    table = findings.load_findings()["out_of_domain"].frame()
+    assert list(table.columns[:len(findings.OUT_OF_DOMAIN_COLUMNS)]) == \
+        list(findings.OUT_OF_DOMAIN_COLUMNS)
+    assert table["kind"].is_unique and (table["n_moulds"] >= 1).all()
+    for row in table.itertuples():
+        counts = outside_counts(row.outside_on)
+        assert set(counts) <= properties, counts
+        assert (row.kind == "inside") == (counts == ())
+        for name in ("z", "spread_ratio", "coverage_90", "field_error"):
+            low, value, high = (getattr(row, f"{name}_lo"), getattr(row, name),
+                                getattr(row, f"{name}_hi"))
+            assert low <= value <= high, (row.kind, name)
+    # every count domain_table can put a mould outside on was measured on its own
+    assert {c for r in table.itertuples() for c in outside_counts(r.outside_on)
+            if len(outside_counts(r.outside_on)) == 1} == properties
+
+
+def test_a_table_the_product_reads_is_checked_for_its_columns(tmp_path):
+    columns = list(findings.OUT_OF_DOMAIN_COLUMNS)
+    entry = {"question": "q", "experiment": "e", "source": "s", "commit": "abc1234",
+             "table": "ood.csv"}
+    path = tmp_path / "findings.json"
+    path.write_text(json.dumps({"out_of_domain": entry}))
+    (tmp_path / "ood.csv").write_text(",".join(columns[:-1]) + "\n")
+    with pytest.raises(ValueError, match="lacks columns \\['noise_ceiling'\\]"):
+        findings.load_findings(path)
+    (tmp_path / "ood.csv").write_text(",".join(columns) + "\n" +
+                                      ",".join(["area", "a"] + ["1"] * (len(columns) - 2)) + "\n")
+    with pytest.raises(ValueError, match="no 'inside' row"):
+        findings.load_findings(path)
+    (tmp_path / "ood.csv").write_text(",".join(columns) + "\n" +
+                                      ",".join(["inside", ""] + ["1"] * (len(columns) - 2)) + "\n")
+    loaded = findings.load_findings(path)["out_of_domain"]  # read beside its findings.json
+    assert loaded.frame()["kind"].tolist() == ["inside"]

@@ -269,6 +269,7 @@ def cmd_evaluate(args) -> None:
 
 
 def cmd_predict(args) -> None:
+    from condor.findings import load_findings
     from condor.surrogate.answer import (MASK_ONLY_MEASURED, domain_table, domain_verdict,
                                          format_summary, mould_summary)
     from condor.surrogate.calibration import tissue_pixels
@@ -287,7 +288,9 @@ def cmd_predict(args) -> None:
         mould = placement.mould
         for warning in training_domain_check(mould, scene):
             print(f"condor predict: warning: {warning}", file=sys.stderr)
-        verdict = domain_verdict(domain_table(mould, scene))
+        measured = load_findings()["out_of_domain"]  # experiments/out_of_domain's table
+        verdict = domain_verdict(domain_table(mould, scene), measured.frame(),
+                                 f"{measured.experiment} at {measured.commit}")
         inputs = input_channels(mould, predictor.native)
         exact = predictor.mould_arguments([mould])  # N_c and lattice channels, when known
         n_cells, lattice = exact.get("n_cells"), exact.get("lattice")

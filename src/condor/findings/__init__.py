@@ -30,6 +30,7 @@ class Finding:
     statement: str = ""
     values: dict = field(default_factory=dict)
     table: str = ""
+    folder: Path = HERE  # where `table` lies: the findings.json's own folder
 
     @property
     def provenance(self) -> str:
@@ -39,7 +40,7 @@ class Finding:
         """The finding's table (ValueError when it has none)."""
         if not self.table:
             raise ValueError(f"finding {self.key!r} has no table")
-        return pd.read_csv(HERE / self.table)
+        return pd.read_csv(self.folder / self.table)
 
     def sentence(self) -> str:
         """The statement with its values filled in, and its provenance."""
@@ -48,10 +49,20 @@ class Finding:
         return f"{self.statement.format(**self.values)} ({self.provenance})"
 
 
+# Columns a finding's table must hold, for the findings the product reads by key.
+OUT_OF_DOMAIN_COLUMNS = ("kind", "outside_on", "description", "n_moulds", "replicas", "z", "z_lo",
+                         "z_hi", "spread_ratio", "spread_ratio_lo", "spread_ratio_hi",
+                         "coverage_90", "coverage_90_lo", "coverage_90_hi", "field_error",
+                         "field_error_lo", "field_error_hi", "noise_ceiling")
+TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS}
+
+
 def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
-    """Every finding of `path` by key; ValueError naming a finding that lacks its provenance
-    or whose table is missing."""
+    """Every finding of `path` by key; ValueError naming a finding that lacks its provenance,
+    whose table is missing, or whose table lacks a column the product reads (TABLE_COLUMNS;
+    the out-of-domain table also needs its "inside" row)."""
     raw = json.loads(Path(path).read_text())
+    folder = Path(path).resolve().parent
     findings = {}
     for key, entry in raw.items():
         missing = [k for k in ("question", "experiment", "source", "commit") if not entry.get(k)]
@@ -59,9 +70,19 @@ def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
             raise ValueError(f"finding {key!r} lacks {missing}")
         if not entry.get("table") and not entry.get("statement"):
             raise ValueError(f"finding {key!r} has neither a table nor a statement")
-        if entry.get("table") and not (Path(path).parent / entry["table"]).is_file():
+        if entry.get("table") and not (folder / entry["table"]).is_file():
             raise ValueError(f"finding {key!r}: no table {entry['table']!r}")
-        findings[key] = Finding(key=key, **entry)
+        findings[key] = Finding(key=key, folder=folder, **entry)
+        if key in TABLE_COLUMNS:
+            if not entry.get("table"):
+                raise ValueError(f"finding {key!r} needs a table")
+            frame = findings[key].frame()
+            absent = [c for c in TABLE_COLUMNS[key] if c not in frame.columns]
+            if absent:
+                raise ValueError(f"finding {key!r}: table {entry['table']!r} lacks columns "
+                                 f"{absent}")
+            if key == "out_of_domain" and "inside" not in set(frame["kind"]):
+                raise ValueError(f"finding {key!r}: table {entry['table']!r} has no 'inside' row")
     return findings
 
 
@@ -81,3 +102,4 @@ def more_moulds_sentence(finding: Finding) -> str:
              f"training ({int(longer['epochs'])} epochs: {longer['mean_Sx2:r']:.3f} / "
              f"{longer['mean_Sy2:r']:.3f})")
     return f"{words} ({finding.provenance})."
+

@@ -43,13 +43,6 @@ _P, _T, _SX2, _SY2, _SXSY = (FIELD_NAMES.index(n) for n in ("P", "T", "Sx2", "Sy
 MASK_ONLY_MEASURED = ("mean tension biased by -9% [-16, -4] and its r 0.93 over 100 test "
                       "moulds, against +0.5% and r 0.996 from the mould's geometry")
 
-# Out of the training domain the predicted spread was overconfident, measured once: a 2-post
-# dog-bone drawn from scratch (issue 32), alignment along x predicted 0.696 +- 0.036 and
-# simulated 0.530 +- 0.067 (2 replicas).
-OUT_OF_DOMAIN_MEASURED = ("measured on a 2-post dog-bone outside the domain: alignment "
-                          "predicted 0.696 +- 0.036, simulated 0.530 +- 0.067 (spread "
-                          "under-predicted by half, the value off by 2.5 of its spreads)")
-
 SUMMARY_DRAWS = 64  # Monte Carlo draws of the spread of each statistic
 
 
@@ -160,17 +153,77 @@ def domain_table(mould, scene) -> pd.DataFrame:
     return pd.DataFrame(rows, columns=["property", "value", "training", "inside"])
 
 
-def domain_verdict(table: pd.DataFrame) -> str:
-    """One line from domain_table: inside, or outside on which counts (with the numbers)."""
+def domain_verdict(table: pd.DataFrame, measured: pd.DataFrame | None = None,
+                   provenance: str = "") -> str:
+    """One line from domain_table: inside, or outside on which counts (with the numbers) and
+    what that did to the surrogate where it was measured (`measured_sentence` of `measured`,
+    the out-of-domain study's table: condor.findings' "out_of_domain" frame, with
+    `provenance`, its experiment and commit; `condor predict` passes them)."""
     outside = table[~table["inside"]]
     if outside.empty:
         return (f"inside the training domain on all {len(table)} counts "
                 f"({'; '.join(f'{r.property} {r.value}' for r in table.itertuples())})")
     counts = "; ".join(f"{r.property} {r.value} (training: {r.training})"
                        for r in outside.itertuples())
+    words = ("Not measured out of the domain" if measured is None else
+             measured_sentence(measured, list(outside["property"]), provenance))
     return (f"OUTSIDE the training domain on {len(outside)} of {len(table)} counts: {counts}. "
-            f"Read the spreads as too small there: {OUT_OF_DOMAIN_MEASURED}; simulate it "
-            "(condor simulate) to be sure")
+            f"{words}. Simulate it (condor simulate) to be sure")
+
+
+def outside_counts(outside_on) -> tuple[str, ...]:
+    """The domain_table properties a row of the out-of-domain table is outside on (its
+    `outside_on`: property names joined by ";", empty inside)."""
+    text = "" if not isinstance(outside_on, str) else outside_on
+    return tuple(p.strip() for p in text.split(";") if p.strip())
+
+
+def _per_statistic(row, prefix: str) -> dict:
+    """A row's per-statistic columns `<prefix><statistic>` (NaN left out), by statistic."""
+    values = {f[len(prefix):]: getattr(row, f) for f in row._fields if f.startswith(prefix)
+              and f not in (f"{prefix}lo", f"{prefix}hi")}
+    return {k: float(v) for k, v in values.items() if isinstance(v, (int, float)) and v == v}
+
+
+def _measured(row) -> str:
+    """One row of the out-of-domain table in words: medians over its moulds, 95% intervals,
+    and, when the table holds them, the statistics whose z and spread ratio are extreme."""
+    z, ratio = _per_statistic(row, "z_"), _per_statistic(row, "spread_ratio_")
+    worst = ""
+    if z:
+        name = max(z, key=z.get)
+        worst = f" (the most, {name}, by {z[name]:.2g})"
+    span = ""
+    if ratio:
+        low, high = min(ratio, key=ratio.get), max(ratio, key=ratio.get)
+        span = f" (from {ratio[low]:.2g}x for {low} to {ratio[high]:.2g}x for {high})"
+    return (f"{int(row.n_moulds)} {row.description}: the statistics are off by {row.z:.2g} "
+            f"[{row.z_lo:.2g}, {row.z_hi:.2g}] of their predicted spreads{worst}, one "
+            f"simulation scatters {row.spread_ratio:.2g}x [{row.spread_ratio_lo:.2g}, "
+            f"{row.spread_ratio_hi:.2g}] the predicted spread{span}, the 90% intervals hold "
+            f"{row.coverage_90:.0%} [{row.coverage_90_lo:.0%}, {row.coverage_90_hi:.0%}] of the "
+            "simulated pixels")
+
+
+def measured_sentence(measured: pd.DataFrame, outside, provenance: str = "") -> str:
+    """What the out-of-domain study measured (its table, condor.findings
+    OUT_OF_DOMAIN_COLUMNS) for a mould outside the training domain on the domain_table
+    properties `outside`: each count's own group of moulds (or "not measured"), a group
+    outside on exactly these counts together when there is one, and the moulds inside the
+    domain for comparison."""
+    rows = list(measured.itertuples())
+    wanted = tuple(outside)
+    parts = []
+    for count in wanted:
+        alone = [r for r in rows if outside_counts(r.outside_on) == (count,)]
+        parts += [f"{count}: {_measured(r)}" for r in alone] or [f"{count}: not measured"]
+    if len(wanted) > 1:
+        parts += [f"{' and '.join(wanted)} together: {_measured(r)}" for r in rows
+                  if set(outside_counts(r.outside_on)) == set(wanted)]
+    inside = [f". Inside it, on {_measured(r)}" for r in rows if r.kind == "inside"]
+    where = f"{provenance}; " if provenance else ""
+    return (f"Measured on moulds drawn outside it ({where}medians over moulds, 95% "
+            f"intervals): {'; '.join(parts)}{''.join(inside)}")
 
 
 def spread_draws(fields: np.ndarray, spread: np.ndarray, sigma_px: float, draws: int = 64,
