@@ -6,6 +6,7 @@ import platform
 import re
 
 import numpy as np
+import shapely
 import pandas as pd
 import pytest
 import torch
@@ -28,7 +29,8 @@ def store(tmp_path_factory):
     rng = np.random.default_rng(1)
     meta = {"seed": 3, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     for mould in range(6):
-        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta, lattice=np.zeros((2, PIXELS, PIXELS), np.float32),
+                     polygon=shapely.box(0.5, 0.5, 3.5, 3.5), tethers=np.full((2, 3), 1.0))
         for r in range(REPLICAS[mould]):
             s = sample_index(REPLICAS, mould, r)
             failed = (mould, r) == (5, 0)
@@ -140,7 +142,8 @@ def replicated_store(tmp_path_factory):
     for mould in range(3):
         lattice = rng.random((2, PIXELS, PIXELS)).astype(np.float32)
         write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8),
-                     meta, lattice=lattice)
+                     meta, lattice=lattice, polygon=shapely.box(0.5, 0.5, 3.5, 3.5),
+                     tethers=np.full((2, 3), 1.0))
         fields[mould] = (1.0 + rng.random((replicas[mould], 8, PIXELS, PIXELS))).astype("float32")
         for r in range(replicas[mould]):
             write_sample(path, sample_index(replicas, mould, r), fields[mould][r],
