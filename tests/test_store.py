@@ -528,3 +528,27 @@ def test_a_store_of_an_older_format_is_refused_naming_what_it_lacks(tmp_path):
     with pytest.raises(StoreError, match=f"format version {FORMAT_VERSION - 1}, this code reads "
                        f"version {FORMAT_VERSION}.*mould geometry.*rebuild"):
         open_store(path)
+
+
+def test_a_generated_mould_with_holes_and_the_most_tethers_round_trips(tmp_path):
+    """Generated moulds have holes (the union of copies encloses them) and may keep every
+    tether the generator's limit allows: seed 1's mould 2890 has 6 holes, its mould 1603 the
+    36 tethers of MouldParams.max_tethers."""
+    from condor.data.moulds import generate_mould
+
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=2))
+    masks, lattice = np.ones((2, PIXELS, PIXELS), "uint8"), np.zeros((2, PIXELS, PIXELS), np.float32)
+    moulds = [generate_mould(1, 2890), generate_mould(1, 1603)]
+    assert len(moulds[0].polygon.interiors) == 6 and moulds[1].n_tethers == MAX_TETHERS
+    for k, made in enumerate(moulds):
+        write_inputs(path, k, masks, {**MOULD_META, "n_tethers": made.n_tethers}, lattice=lattice,
+                     polygon=made.polygon, tethers=made.tethers)
+    ds = open_store(path)
+    for k, made in enumerate(moulds):
+        back = outline_polygon(ds["outline_x"].values[k], ds["outline_y"].values[k],
+                               ds["outline_vertices"].values[k])
+        assert back.equals_exact(made.polygon, 0.0)
+        assert [r.coords[:] for r in back.interiors] == [r.coords[:] for r in made.polygon.interiors]
+        stored = np.column_stack([ds[f"tether_{a}"].values[k] for a in "xyr"])[:made.n_tethers]
+        np.testing.assert_array_equal(stored, made.tethers)
