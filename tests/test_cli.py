@@ -6,6 +6,7 @@ import subprocess
 import sys
 
 import numpy as np
+import shapely
 import pytest
 
 from condor import cli
@@ -74,7 +75,8 @@ def test_check_store_lists_states(tmp_path):
     meta = {"seed": 0, "symmetry": "cyclic", "order": 2, "removal": "none", "n_tethers": 4}
     sim = {"sim_seed": 1, "n_cells": 10, "energy": 0.0, "max_force": 1e-4, "solver": "hybrid", "solver_seconds": 0.1, "hardware": "test"}
     for sample in (0, 1, 2):
-        write_inputs(store, sample, np.zeros((2, 8, 8), "uint8"), meta, lattice=np.zeros((2, 8, 8), np.float32))
+        write_inputs(store, sample, np.zeros((2, 8, 8), "uint8"), meta, lattice=np.zeros((2, 8, 8), np.float32),
+                     polygon=shapely.box(1, 1, 7, 7), tethers=np.full((4, 3), 2.0))
     write_sample(store, 0, np.ones((8, 8, 8), "float32"), sim, "ok")
     write_sample(store, 1, None, sim, "folded lattice")
     proc = condor("check-store", store, cwd=tmp_path)

@@ -6,6 +6,7 @@ import platform
 import re
 
 import numpy as np
+import shapely
 import pandas as pd
 import pytest
 import torch
@@ -28,7 +29,8 @@ def store(tmp_path_factory):
     rng = np.random.default_rng(1)
     meta = {"seed": 3, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     for mould in range(6):
-        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+        write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8), meta, lattice=np.zeros((2, PIXELS, PIXELS), np.float32),
+                     polygon=shapely.box(0.5, 0.5, 3.5, 3.5), tethers=np.full((2, 3), 1.0))
         for r in range(REPLICAS[mould]):
             s = sample_index(REPLICAS, mould, r)
             failed = (mould, r) == (5, 0)
@@ -90,6 +92,8 @@ def test_card_counts_and_core_hours_match_the_store(store, tmp_path):
     assert test_row[0] == "test" and "5" in test_row
     assert "CPU A" in text and "CPU B" in text
     assert "condor.open_dataset" in text and "check-store --deep" in text
+    assert "`outline_x`, `outline_y`" in text and "`tether_r`" in text
+    assert "condor.dataset.mould_geometry(ds, 0)" in text
 
 
 def test_training_data_names_a_corrupt_or_lost_sample(store, tmp_path):
@@ -140,7 +144,8 @@ def replicated_store(tmp_path_factory):
     for mould in range(3):
         lattice = rng.random((2, PIXELS, PIXELS)).astype(np.float32)
         write_inputs(path, mould, (rng.random((2, PIXELS, PIXELS)) > 0.5).astype(np.uint8),
-                     meta, lattice=lattice)
+                     meta, lattice=lattice, polygon=shapely.box(0.5, 0.5, 3.5, 3.5),
+                     tethers=np.full((2, 3), 1.0))
         fields[mould] = (1.0 + rng.random((replicas[mould], 8, PIXELS, PIXELS))).astype("float32")
         for r in range(replicas[mould]):
             write_sample(path, sample_index(replicas, mould, r), fields[mould][r],
@@ -230,3 +235,77 @@ def test_card_counts_moulds_and_simulations_apart_and_gives_licence_and_citation
 
 def test_dir_condor_lists_what_it_offers():
     assert {"open_dataset", "torch_dataset", "score", "__version__"} <= set(dir(condor))
+
+
+# --------------------------------------------------------------------------- the mould geometry
+
+
+@pytest.fixture(scope="module")
+def mould_store(tmp_path_factory):
+    """A tiny store whose moulds the mould stage wrote (no simulation): (config, path)."""
+    from condor.config import Config
+    from condor.stages.dataset import make_moulds
+
+    config = Config.from_dict({"scene": "tiny", "seed": 11, "n_moulds": 6, "split": {"test": 2}})
+    folder = tmp_path_factory.mktemp("geometry")
+    path = folder / "dataset.zarr"
+    create_store(path, config.store_spec())
+    make_moulds(config, range(config.n_moulds), folder / "moulds.json", path)
+    return config, path
+
+
+def test_mould_geometry_is_the_generators_to_the_last_bit_in_every_replica(mould_store):
+    from condor.data.moulds import generate_mould
+
+    config, path = mould_store
+    ds = condor.open_dataset(path)
+    scene = config.scene
+    for sample in range(ds.sizes["sample"]):
+        mould = int(ds["mould"].values[sample])
+        made = generate_mould(config.seed, mould, box=scene.box, params=config.mould_params(),
+                              area_fraction=scene.area_fraction, max_extent=scene.max_extent)
+        polygon, tethers = dataset.mould_geometry(ds, sample)
+        assert polygon.equals_exact(made.polygon, 0.0)
+        np.testing.assert_array_equal(shapely.get_coordinates(polygon),
+                                      shapely.get_coordinates(made.polygon))
+        assert [len(r.coords) for r in polygon.interiors] == \
+            [len(r.coords) for r in made.polygon.interiors]
+        assert tethers.dtype == np.float64 and tethers.shape == (made.n_tethers, 3)
+        np.testing.assert_array_equal(tethers, made.tethers)
+    again, _ = dataset.mould_geometry(path, 2)  # a path works too
+    assert again.equals_exact(dataset.mould_geometry(ds, 2)[0], 0.0)
+
+
+def test_the_stored_inputs_are_the_recovered_geometry_rasterised_on_the_x_y_coordinates(
+        mould_store):
+    """An independent check of the geometry and its frame: each pixel centre (the store's own
+    x and y coordinates) inside the outline and no post is a mould pixel, inside a post's
+    circle a tether pixel (the rule of condor.data.moulds.input_channels, written out)."""
+    _, path = mould_store
+    ds = condor.open_dataset(path)
+    x, y = np.meshgrid(ds["x"].values, ds["y"].values)  # [y, x], like the inputs
+    for sample in range(ds.sizes["sample"]):
+        polygon, tethers = dataset.mould_geometry(ds, sample)
+        post = np.zeros(x.shape, bool)
+        for cx, cy, r in tethers:
+            post |= (x - cx) ** 2 + (y - cy) ** 2 < r * r
+        inside = shapely.contains_xy(polygon, x, y)
+        stored = ds["inputs"].values[sample]
+        np.testing.assert_array_equal(stored[0], inside & ~post)
+        np.testing.assert_array_equal(stored[1], post)
+        assert stored[1].any() == (len(tethers) > 0)
+
+
+def test_mould_geometry_names_what_it_cannot_give(mould_store, store):
+    _, path = mould_store
+    ds = condor.open_dataset(path)
+    with pytest.raises(IndexError, match="sample 99 is not in the dataset"):
+        dataset.mould_geometry(ds, 99)
+    unwritten = ds.copy()
+    unwritten["inputs_ready"] = unwritten["inputs_ready"] * 0
+    with pytest.raises(ValueError, match="sample 1: its mould is not written yet"):
+        dataset.mould_geometry(unwritten, 1)
+    with pytest.raises(condor.dataset.StoreError, match="no mould geometry.*format"):
+        dataset.mould_geometry(ds.drop_vars(["outline_x", "outline_y"]), 0)
+    polygon, tethers = dataset.mould_geometry(store, 0)  # the synthetic store's square
+    assert polygon.equals(shapely.box(0.5, 0.5, 3.5, 3.5)) and tethers.shape == (2, 3)

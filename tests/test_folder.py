@@ -8,6 +8,7 @@ import subprocess
 import sys
 
 import numpy as np
+import shapely
 import pytest
 
 from condor.config import Config
@@ -84,7 +85,8 @@ def simulated_store(tmp_path):
     sim = {"sim_seed": 0, "n_cells": 10, "energy": 1.0, "max_force": 0.0, "solver": "hybrid",
            "solver_seconds": 1.0, "hardware": "test"}
     for mould in range(config.n_moulds):
-        write_inputs(store, mould, np.ones((2, 32, 32), np.uint8), meta, lattice=np.zeros((2, 32, 32), np.float32))
+        write_inputs(store, mould, np.ones((2, 32, 32), np.uint8), meta, lattice=np.zeros((2, 32, 32), np.float32),
+                     polygon=shapely.box(1, 1, 7, 7), tethers=np.full((2, 3), 2.0))
         for r in range(replicas[mould]):
             write_sample(store, sample_index(replicas, mould, r),
                          np.ones((8, 32, 32), np.float32), sim, "ok")

@@ -225,6 +225,7 @@ def damage(workdir, chunk, how):
     ("fields/c/17/0/0/0", "truncate"),  # a replica's (mould 4's third)
     ("inputs/c/2/0/0/0", "delete"),   # else the sample reads as a blank mould
     ("lattice/c/5/0/0/0", "delete"),
+    ("outline_x/c/6/0", "truncate"),  # the mould's geometry: written again from its JSON
 ])
 def test_a_deleted_or_truncated_chunk_file_is_found_and_repaired(folder, chunk, how):
     before = store_files(folder)

@@ -7,6 +7,7 @@ import html.parser
 import re
 
 import numpy as np
+import shapely
 import pandas as pd
 import pytest
 
@@ -170,7 +171,8 @@ def fake_inputs(tmp_path):
     create_store(store, StoreSpec(2, 8, 0, ("train", "test"), {}))
     for i in range(2):
         write_inputs(store, i, np.ones((2, 8, 8), np.uint8),
-                     {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}, lattice=np.zeros((2, 8, 8), np.float32))
+                     {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}, lattice=np.zeros((2, 8, 8), np.float32),
+                     polygon=shapely.box(1, 1, 7, 7), tethers=np.full((2, 3), 2.0))
         write_sample(store, i, np.ones((8, 8, 8), np.float32),
                      {"sim_seed": 1, "n_cells": 100, "energy": 1.0, "max_force": 1e-4,
                       "solver": "hybrid", "solver_seconds": 2.0, "hardware": "test"}, "ok")

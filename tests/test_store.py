@@ -5,11 +5,15 @@ import shutil
 
 import numpy as np
 import pytest
+import shapely
 import xarray as xr
 import zarr
 
 from condor.data.store import (
     FIELD_NAMES,
+    FORMAT_VERSION,
+    MAX_TETHERS,
+    MAX_VERTICES,
     StoreError,
     StoreSpec,
     assign_splits,
@@ -19,6 +23,7 @@ from condor.data.store import (
     create_store,
     inputs_whole,
     open_store,
+    outline_polygon,
     restore_layout,
     sample_index,
     sample_layout,
@@ -31,6 +36,7 @@ from condor.data.store import (
 
 PIXELS = 8
 MOULD_META = {"seed": 1, "symmetry": "cyclic", "order": 3, "removal": "none", "n_tethers": 6}
+GEOMETRY = {"polygon": shapely.box(0.5, 0.5, 3.5, 3.5), "tethers": np.full((6, 3), 1.0)}
 
 
 def spec(n=6, seed=3, replicas=None, **attrs):
@@ -89,11 +95,11 @@ def test_new_store_opens_with_xarray_and_is_empty(tmp_path):
 def test_sample_visible_only_when_status_written(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
-    write_inputs(path, 2, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+    write_inputs(path, 2, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     states = check_store(path).set_index("sample")["state"]
     assert states[2] == "pending" and states[1] == "missing"
     write_sample(path, 2, fake_fields(2), sim_meta(), "ok")
-    write_inputs(path, 3, np.zeros((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+    write_inputs(path, 3, np.zeros((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     write_sample(path, 3, None, sim_meta(), "folded lattice: 12 inverted tetrahedra")
     table = check_store(path, deep=True).set_index("sample")
     assert table.loc[2, "state"] == "ok"
@@ -108,7 +114,7 @@ def test_sample_visible_only_when_status_written(tmp_path):
 def test_existing_store_is_kept_and_mismatch_is_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
-    write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+    write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     assert not create_store(path, spec())  # same spec: kept, data intact
     assert check_store(path)["state"][0] == "pending"
     with pytest.raises(StoreError, match="seed"):
@@ -124,11 +130,11 @@ def test_bad_writes_are_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
     with pytest.raises(StoreError, match="not in the store"):
-        write_inputs(path, 6, np.ones((2, PIXELS, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+        write_inputs(path, 6, np.ones((2, PIXELS, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     with pytest.raises(StoreError, match="outside"):
         write_sample(path, 6, fake_fields(0), sim_meta(), "ok")
     with pytest.raises(ValueError, match="shape"):
-        write_inputs(path, 0, np.ones((2, PIXELS + 1, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS + 1, PIXELS), np.float32))
+        write_inputs(path, 0, np.ones((2, PIXELS + 1, PIXELS)), MOULD_META, lattice=np.zeros((2, PIXELS + 1, PIXELS), np.float32), **GEOMETRY)
     nan_fields = fake_fields(0)
     nan_fields[3, 2, 2] = np.nan
     with pytest.raises(ValueError, match="NaN"):
@@ -159,7 +165,7 @@ def test_corrupt_chunk_is_reported_not_raised(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec())
     for sample in (0, 1):
-        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
         write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
     chunk = next((path / "fields" / "c" / "1").rglob("*"))
     while chunk.is_dir():
@@ -171,7 +177,7 @@ def test_corrupt_chunk_is_reported_not_raised(tmp_path):
 
 def _write_one(args):
     path, sample = args
-    write_inputs(path, sample, np.full((2, PIXELS, PIXELS), sample % 2, "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+    write_inputs(path, sample, np.full((2, PIXELS, PIXELS), sample % 2, "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     write_sample(path, sample, fake_fields(sample), sim_meta(n_cells=sample), "ok")
 
 
@@ -206,7 +212,7 @@ def test_inputs_reach_every_replica_and_expected_fields_are_their_mean(tmp_path)
     counts = (1, 3, 1, 1, 1, 2)
     create_store(path, spec(replicas=counts))
     rng = np.random.default_rng(0)
-    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
     replicas = [rng.random((8, PIXELS, PIXELS)).astype("float32") for _ in range(3)]
     for r, fields in enumerate(replicas):
         write_sample(path, sample_index(counts, 1, r), fields, sim_meta(), "ok")
@@ -226,7 +232,7 @@ def _finished(tmp_path, n=4):
     path = tmp_path / "d.zarr"
     create_store(path, spec(n=n))
     for sample in range(n):
-        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32))
+        write_inputs(path, sample, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=np.zeros((2, PIXELS, PIXELS), np.float32), **GEOMETRY)
         write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
     return path
 
@@ -277,7 +283,7 @@ def test_lattice_channels_round_trip_and_bad_ones_are_refused(tmp_path):
     path = tmp_path / "d.zarr"
     create_store(path, spec(n=2))
     lattice = np.random.default_rng(0).random((2, PIXELS, PIXELS)).astype(np.float32)
-    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice)
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice, **GEOMETRY)
     ds = open_store(path)
     assert ds["lattice"].dims == ("sample", "cell", "y", "x")
     assert list(ds["cell"].values) == ["mobile", "fixed"]
@@ -285,10 +291,10 @@ def test_lattice_channels_round_trip_and_bad_ones_are_refused(tmp_path):
     bad = lattice.copy()
     bad[0, 1, 1] = np.nan
     with pytest.raises(ValueError, match="lattice channels of mould 0 hold NaN"):
-        write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=bad)
+        write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=bad, **GEOMETRY)
     with pytest.raises(ValueError, match="lattice for mould 0 have shape"):
         write_inputs(path, 0, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META,
-                     lattice=lattice[:1])
+                     lattice=lattice[:1], **GEOMETRY)
     assert check_store(path).set_index("sample").loc[0, "state"] == "missing"  # nothing written
 
 
@@ -303,7 +309,7 @@ def _replicated(tmp_path):
     create_store(path, spec(n=len(COUNTS), replicas=COUNTS))
     lattice = np.random.default_rng(1).random((2, PIXELS, PIXELS)).astype(np.float32)
     for mould in range(len(COUNTS)):
-        write_inputs(path, mould, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice)
+        write_inputs(path, mould, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META, lattice=lattice, **GEOMETRY)
     for sample in range(sum(COUNTS)):
         write_sample(path, sample, fake_fields(sample), sim_meta(), "ok")
     write_expected(path)
@@ -320,6 +326,7 @@ def _damaged(path, deep=False):
 
 @pytest.mark.parametrize("array, index", [
     ("fields", 3), ("fields", 5), ("inputs", 2), ("lattice", 6), ("energy", 1), ("seed", 0),
+    ("outline_x", 4), ("outline_vertices", 2), ("tether_r", 0),
     ("status", 4), ("split", 1), ("mould", 6), ("replica", 5), ("fields_mean", 1),
     ("fields_std", 0), ("field", 0), ("replicated", 0)])
 def test_a_deleted_chunk_file_of_any_array_is_found_without_decoding(tmp_path, array, index):
@@ -334,7 +341,8 @@ def test_a_deleted_chunk_file_of_any_array_is_found_without_decoding(tmp_path, a
         assert check_store(path).set_index("sample").loc[index, "state"] == "pending"
     else:
         assert found == {(array, index)}
-    if array in ("fields", "inputs", "lattice", "energy", "seed", "split", "mould", "replica"):
+    if array in ("fields", "inputs", "lattice", "energy", "seed", "split", "mould", "replica",
+                 "outline_x", "outline_vertices", "tether_r"):
         table = check_store(path).set_index("sample")
         assert table.loc[index, "state"] == "corrupt" and table.loc[index, "lost"] == array
 
@@ -431,3 +439,116 @@ def test_inputs_whole_names_a_mould_whose_inputs_were_lost(tmp_path):
     data[-1] ^= 0x01
     chunk.write_bytes(bytes(data))
     assert [inputs_whole(path, m) for m in range(len(COUNTS))] == [True, False, True, False]
+
+
+# --- the mould's geometry (issue 32, item 4) ---------------------------------------------------
+
+
+def test_geometry_reaches_every_replica_exactly_with_holes_and_cf_attributes(tmp_path):
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=len(COUNTS), replicas=COUNTS, pixel_size=0.5))
+    ring = shapely.Point(2.0, 2.0).buffer(1.7, quad_segs=5)  # irrational vertices: exactness
+    holed = ring.difference(shapely.box(1.6, 1.6, 2.1, 2.1)).difference(
+        shapely.Point(2.9, 2.0).buffer(0.2, quad_segs=2))
+    assert len(holed.interiors) == 2
+    tethers = np.random.default_rng(2).random((6, 3)) + [1.0, 1.0, 0.05]
+    write_inputs(path, 1, np.ones((2, PIXELS, PIXELS), "uint8"), MOULD_META,
+                 lattice=np.zeros((2, PIXELS, PIXELS), np.float32), polygon=holed, tethers=tethers)
+    ds = open_store(path)
+    assert ds["outline_x"].dims == ("sample", "vertex") and ds.sizes["vertex"] == MAX_VERTICES
+    assert ds["tether_r"].dims == ("sample", "tether") and ds.sizes["tether"] == MAX_TETHERS
+    for name in ("outline_x", "outline_y", "tether_x", "tether_y", "tether_r"):
+        assert ds[name].dtype == np.float64 and ds[name].attrs["units"] == "l0", name
+        assert ds[name].attrs["long_name"], name
+    assert "frame of the x coordinate" in ds["outline_x"].attrs["frame"]
+    assert "lower edge" in ds["tether_y"].attrs["frame"]
+    count = len(holed.exterior.coords) + sum(len(r.coords) + 1 for r in holed.interiors)
+    for sample in (1, 4, 5):  # every replica of mould 1
+        x, y = ds["outline_x"].values[sample], ds["outline_y"].values[sample]
+        assert int(ds["outline_vertices"].values[sample]) == count
+        assert np.isnan(x[count:]).all() and np.isfinite(x[:len(holed.exterior.coords)]).all()
+        back = outline_polygon(x, y, count)
+        assert back.equals_exact(holed, 0.0) and len(back.interiors) == 2
+        np.testing.assert_array_equal(shapely.get_coordinates(back),
+                                      shapely.get_coordinates(holed))
+        stored = np.column_stack([ds[f"tether_{a}"].values[sample] for a in "xyr"])
+        np.testing.assert_array_equal(stored[:6], tethers)
+        assert np.isnan(stored[6:]).all()
+    # a mould not yet written holds the fill values
+    assert int(ds["outline_vertices"].values[0]) == -1 and np.isnan(ds["outline_x"].values[0]).all()
+    assert check_metadata(path) == [] and scan_store(path, deep=True).damage == []
+
+
+def test_geometry_that_does_not_fit_is_refused_by_value_and_nothing_is_written(tmp_path):
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=2))
+    masks, lattice = np.ones((2, PIXELS, PIXELS), "uint8"), np.zeros((2, PIXELS, PIXELS), np.float32)
+    fine = shapely.box(0.5, 0.5, 3.5, 3.5)
+    dense = shapely.Point(2.0, 2.0).buffer(1.5, quad_segs=600)
+    n = len(dense.exterior.coords)
+    assert n > MAX_VERTICES
+    with pytest.raises(ValueError, match=f"mould 0: the outline needs {n} entries.*at most "
+                       f"{MAX_VERTICES}"):
+        write_inputs(path, 0, masks, MOULD_META, lattice=lattice, polygon=dense,
+                     tethers=GEOMETRY["tethers"])
+    many = np.full((MAX_TETHERS + 1, 3), 1.0)
+    with pytest.raises(ValueError, match=f"{MAX_TETHERS + 1} tethers.*at most {MAX_TETHERS}"):
+        write_inputs(path, 0, masks, {**MOULD_META, "n_tethers": MAX_TETHERS + 1},
+                     lattice=lattice, polygon=fine, tethers=many)
+    with pytest.raises(ValueError, match="MultiPolygon"):
+        write_inputs(path, 0, masks, MOULD_META, lattice=lattice, tethers=GEOMETRY["tethers"],
+                     polygon=fine.union(shapely.box(5, 5, 6, 6)))
+    with pytest.raises(ValueError, match="3 tethers given.*n_tethers = 6"):
+        write_inputs(path, 0, masks, MOULD_META, lattice=lattice, polygon=fine,
+                     tethers=np.full((3, 3), 1.0))
+    with pytest.raises(ValueError, match="shape"):
+        write_inputs(path, 0, masks, MOULD_META, lattice=lattice, polygon=fine,
+                     tethers=np.full((6, 2), 1.0))
+    assert check_store(path).set_index("sample").loc[0, "state"] == "missing"
+    # the largest outline that fits is kept whole
+    angle = np.linspace(0.0, 2 * np.pi, MAX_VERTICES - 1, endpoint=False)
+    edge = shapely.Polygon(np.column_stack([2 + 1.5 * np.cos(angle), 2 + 1.5 * np.sin(angle)]))
+    assert len(edge.exterior.coords) == MAX_VERTICES
+    write_inputs(path, 1, masks, {**MOULD_META, "n_tethers": 0}, lattice=lattice, polygon=edge,
+                 tethers=np.zeros((0, 3)))
+    ds = open_store(path)
+    assert int(ds["outline_vertices"].values[1]) == MAX_VERTICES
+    assert outline_polygon(ds["outline_x"].values[1], ds["outline_y"].values[1],
+                           MAX_VERTICES).equals_exact(edge, 0.0)
+    assert np.isnan(ds["tether_x"].values[1]).all()
+
+
+def test_a_store_of_an_older_format_is_refused_naming_what_it_lacks(tmp_path):
+    import json
+
+    path = _finished(tmp_path)
+    root = json.loads((path / "zarr.json").read_text())
+    root["attributes"]["format_version"] = FORMAT_VERSION - 1
+    (path / "zarr.json").write_text(json.dumps(root))
+    with pytest.raises(StoreError, match=f"format version {FORMAT_VERSION - 1}, this code reads "
+                       f"version {FORMAT_VERSION}.*mould geometry.*rebuild"):
+        open_store(path)
+
+
+def test_a_generated_mould_with_holes_and_the_most_tethers_round_trips(tmp_path):
+    """Generated moulds have holes (the union of copies encloses them) and may keep every
+    tether the generator's limit allows: seed 1's mould 2890 has 6 holes, its mould 1603 the
+    36 tethers of MouldParams.max_tethers."""
+    from condor.data.moulds import generate_mould
+
+    path = tmp_path / "d.zarr"
+    create_store(path, spec(n=2))
+    masks, lattice = np.ones((2, PIXELS, PIXELS), "uint8"), np.zeros((2, PIXELS, PIXELS), np.float32)
+    moulds = [generate_mould(1, 2890), generate_mould(1, 1603)]
+    assert len(moulds[0].polygon.interiors) == 6 and moulds[1].n_tethers == MAX_TETHERS
+    for k, made in enumerate(moulds):
+        write_inputs(path, k, masks, {**MOULD_META, "n_tethers": made.n_tethers}, lattice=lattice,
+                     polygon=made.polygon, tethers=made.tethers)
+    ds = open_store(path)
+    for k, made in enumerate(moulds):
+        back = outline_polygon(ds["outline_x"].values[k], ds["outline_y"].values[k],
+                               ds["outline_vertices"].values[k])
+        assert back.equals_exact(made.polygon, 0.0)
+        assert [r.coords[:] for r in back.interiors] == [r.coords[:] for r in made.polygon.interiors]
+        stored = np.column_stack([ds[f"tether_{a}"].values[k] for a in "xyr"])[:made.n_tethers]
+        np.testing.assert_array_equal(stored, made.tethers)

@@ -2,6 +2,7 @@
 synthetic ensembles with known answers, the convergence study and the ladder on tiny moulds."""
 
 import numpy as np
+import shapely
 import pandas as pd
 import pytest
 from shapely.geometry import box
@@ -122,7 +123,8 @@ def test_reference_ensemble_reads_ok_replicas_from_the_store(tmp_path):
     rng = np.random.default_rng(0)
     meta = {"seed": 0, "symmetry": "x", "order": 1, "removal": "none", "n_tethers": 2}
     for mould in range(5):
-        write_inputs(path, mould, np.ones((2, 8, 8), np.uint8), meta, lattice=np.zeros((2, 8, 8), np.float32))
+        write_inputs(path, mould, np.ones((2, 8, 8), np.uint8), meta, lattice=np.zeros((2, 8, 8), np.float32),
+                     polygon=shapely.box(1, 1, 7, 7), tethers=np.full((2, 3), 2.0))
         for r in range(counts[mould]):
             status = "folded" if (mould, r) == (4, 2) else "ok"
             write_sample(path, sample_index(counts, mould, r),

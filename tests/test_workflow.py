@@ -109,6 +109,18 @@ def test_end_to_end_tiny(tiny_run, tiny_copy):
     samples = np.flatnonzero(ds["mould"].values == mould)
     np.testing.assert_allclose(ds["fields_mean"].values[0],
                                ds["fields"].values[samples].astype(float).mean(axis=0), rtol=1e-5)
+    # each mould's geometry in the store, in every replica, is the one its batch's JSON holds
+    from condor.data.reader import mould_geometry
+    from condor.stages.dataset import load_moulds
+
+    batches = sorted((tiny_run / "results" / "moulds").glob("batch_*.json"))
+    moulds = [m for path in batches for m in load_moulds(path)]
+    assert sorted(m.mould_id for m in moulds) == list(range(16))
+    for made in moulds:
+        for sample in np.flatnonzero(ds["mould"].values == made.mould_id):
+            polygon, tethers = mould_geometry(ds, int(sample))
+            assert polygon.equals_exact(made.polygon, 0.0)
+            np.testing.assert_array_equal(tethers, made.tethers)
     # Nothing left to do: a second run (on a copy: the run is shared) schedules no job.
     assert "Nothing to be done" in run(tiny_copy, *TINY).stderr
     assert_cli_trains_the_workflows_model(tiny_copy)

@@ -109,6 +109,18 @@ class MouldParams:
     quad_segs: int = 8  # buffer arc resolution (segments per quarter circle)
     max_attempts: int = 2000  # geometry redraws per mould
 
+    @property
+    def max_copies(self) -> int:
+        """The most copies of the initial shape a mould is the union of: random rotation
+        `copies_max`, mirrors 2 or 4, cyclic `order_max`, dihedral 2 x `order_max`."""
+        return max(self.copies_max, 4, 2 * self.order_max)
+
+    @property
+    def max_tethers(self) -> int:
+        """The most tethers a generated mould can keep: every copy of the initial tethers
+        (pruning only removes); 36 for the defaults (3 tethers x 12 dihedral copies)."""
+        return self.initial_tethers * self.max_copies
+
     def validate(self) -> None:
         """Raise ValueError naming the first bad field."""
         probs = ("no_tether_fraction", "convex_rounding", "concave_rounding", "hull_probability")

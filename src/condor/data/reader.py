@@ -11,9 +11,12 @@ Layout (DESIGN.md "The dataset contract", condor.data.store): `inputs` (sample, 
 with channels mould, tether; `lattice` (sample, cell, y, x) float32, the mould's initial mobile
 and fixed cells rasterised with the fields' kernel in units of a full FCC column
 (condor.data.inputs: what the default surrogate reads); `fields` (sample, field, y, x) float32, the 8 un-normalised fields
-P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz; per-sample metadata; for moulds simulated with several
-seeds, `fields_mean` and `fields_std` (replicated, field, y, x). A `README.md` dataset card
-(`write_card`) sits beside the store.
+P, T, Sx2, Sy2, Sz2, SxSy, SxSz, SySz; per-sample metadata; each mould's geometry, in l0 in the
+frame of the x and y coordinates: `outline_x`, `outline_y` (sample, vertex; `outline_vertices` in
+use, NaN-padded) and `tether_x`, `tether_y`, `tether_r` (sample, tether; `n_tethers` in use),
+read back with `mould_geometry(ds, sample)` as a shapely Polygon and the tethers (n, 3); for
+moulds simulated with several seeds, `fields_mean` and `fields_std` (replicated, field, y, x). A
+`README.md` dataset card (`write_card`) sits beside the store.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ import xarray as xr
 
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
-from condor.data.store import SPLITS, check_store, open_store
+from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, check_store,
+                               open_store, outline_polygon)
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
 ITEM_SHAPES = "inputs (2, H, W) float32 0/1; fields (8, H, W) float32"
@@ -158,6 +162,38 @@ def torch_dataset(ds: xr.Dataset, split: str = "train", standardise: pd.DataFram
     return FieldsDataset()
 
 
+def mould_geometry(ds, index: int):
+    """The geometry of sample `index`'s mould as it was simulated and rasterised: (a shapely
+    Polygon, its outline with any holes; tethers (n, 3) float64: x, y, radius), in l0 in the
+    frame of the x and y coordinates (box coordinates: from the box's left and lower edges).
+    Exactly the generator's (condor.data.moulds.generate_mould: `.polygon`, `.tethers`), to
+    the last bit. `ds`: an open dataset or the store's path. Samples 0..n_moulds-1 are
+    replica 0 of moulds 0..n_moulds-1, so a mould id is a sample too; every replica holds its
+    mould's geometry. The inputs of it: condor.data.moulds.input_channels(Mould(box=
+    ds.attrs["scene"]["box"], polygon=polygon, tethers=tethers), pixels)."""
+    if not isinstance(ds, xr.Dataset):
+        ds = open_dataset(ds)
+    missing = [name for name in GEOMETRY_ARRAYS if name not in ds]
+    if missing:
+        raise StoreError(f"the dataset holds no mould geometry (no {', '.join(missing)}): "
+                         f"store format {ds.attrs.get('format_version')}, the geometry came "
+                         f"with format 5; rebuild the store with this code (format "
+                         f"{FORMAT_VERSION})")
+    n = ds.sizes["sample"]
+    if isinstance(index, bool) or not isinstance(index, (int, np.integer)) or not 0 <= index < n:
+        raise IndexError(f"sample {index!r} is not in the dataset (samples 0..{n - 1})")
+    item = ds[[*GEOMETRY_ARRAYS, "n_tethers", "inputs_ready"]].isel(sample=int(index)).load()
+    if int(item["inputs_ready"]) != 1 or int(item["outline_vertices"]) < 0:
+        raise ValueError(f"sample {index}: its mould is not written yet (inputs_ready "
+                         f"{int(item['inputs_ready'])})")
+    polygon = outline_polygon(item["outline_x"].values, item["outline_y"].values,
+                              int(item["outline_vertices"]))
+    count = int(item["n_tethers"])
+    tethers = np.column_stack([item[f"tether_{a}"].values[:count] for a in "xyr"]).astype(
+        np.float64)
+    return polygon, tethers
+
+
 # --- the dataset card -----------------------------------------------------------------------
 
 def card(store, config: dict | None = None) -> str:
@@ -191,6 +227,14 @@ def card(store, config: dict | None = None) -> str:
         "mobile and fixed cells rasterised with the fields' kernel, in units of a full FCC "
         "column) and the fields P (density), T (tension), Sx2, Sy2, Sz2, SxSy, SxSz, SySz "
         "(orientation tensor), un-normalised pixel sums.",
+        "",
+        "Each mould's geometry, as simulated, in l0 in the frame of the x and y coordinates "
+        "(box coordinates: from the box's left and lower edges): `outline_x`, `outline_y` "
+        "(sample, vertex), the outline's exterior ring (closed) then each hole's after one NaN, "
+        "`outline_vertices` of them in use; `tether_x`, `tether_y`, `tether_r` (sample, tether), "
+        "the posts' centres and radii, `n_tethers` in use; NaN after. "
+        "`condor.dataset.mould_geometry(ds, sample)` gives a shapely Polygon and the tethers "
+        "(n, 3).",
         "",
         "## Scene and model",
         "",
@@ -243,6 +287,7 @@ def card(store, config: dict | None = None) -> str:
         "# condor.torch_dataset(ds, 'test', lattice=True, n_cells=True, mould_id=True, expected=True)",
         "# score predictions of the test moulds against the noise-corrected expected fields:",
         "# condor.score(raw_fields_of_the_replicated_moulds, ds)['accuracy']",
+        "polygon, tethers = condor.dataset.mould_geometry(ds, 0)  # mould 0: outline, (n, 3) posts",
         "```",
         "",
         "Replicas: sample `s` holds replica `replica[s]` of mould `mould[s]`; samples 0..n-1 are "

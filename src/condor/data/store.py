@@ -16,8 +16,8 @@ are created, full size, by `create_store` and consolidated once. Every chunk car
 checksum (zarr's crc32c codec), so a flipped bit is caught when the chunk is read. A sample
 becomes visible in stages, each finished by a flag written last:
 
-- the mould stage writes `inputs` and the mould metadata of every replica, then
-  `inputs_ready = 1`;
+- the mould stage writes `inputs`, `lattice`, the mould metadata and the mould's geometry
+  (its outline and tethers, GEOMETRY_ARRAYS) of every replica, then `inputs_ready = 1`;
 - the fields stage writes `fields` and the simulation metadata, then `status` ("ok", or the
   reason the simulation failed, in which case `fields` stays empty).
 
@@ -50,15 +50,20 @@ import numpy as np
 import pandas as pd
 import xarray as xr
 import zarr
+from shapely.geometry import Polygon
 from zarr.codecs import Crc32cCodec, ZstdCodec
 
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
 from condor.data.inputs import LATTICE_CHANNELS
+from condor.data.moulds import MouldParams
 
 FORMAT = "condor-dataset"
-FORMAT_VERSION = 4  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y
-# coordinates (pixel centres, l0) and CF attributes (units, long_name) on every array
+FORMAT_VERSION = 5  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y
+# coordinates (pixel centres, l0) and CF attributes (units, long_name) on every array; 5: each
+# mould's geometry (GEOMETRY_ARRAYS: its outline and its tethers, l0)
+FORMAT_CHANGES = {3: "the lattice channels", 4: "x and y coordinates and CF attributes",
+                  5: "the mould geometry (outline_x, outline_y, tether_x, tether_y, tether_r)"}
 CHANNELS = ("mould", "tether")
 SPLITS = ("train", "val", "test")
 
@@ -73,6 +78,7 @@ SAMPLE_VARIABLES: dict[str, tuple[object, object]] = {
     "order": ("int16", -1),
     "removal": ("<U24", ""),
     "n_tethers": ("int16", -1),
+    "outline_vertices": ("int32", -1),
     "inputs_ready": ("uint8", 0),
     "sim_seed": ("int64", -1),
     "n_cells": ("int32", -1),
@@ -85,13 +91,25 @@ SAMPLE_VARIABLES: dict[str, tuple[object, object]] = {
     "split": ("<U8", ""),
 }
 MOULD_VARIABLES = ("seed", "symmetry", "order", "removal", "n_tethers")
+# The mould's geometry, per sample like its metadata (every replica carries it), in l0 in the
+# frame of the x and y coordinates: its outline (the exterior ring, closed: its first vertex
+# repeated last; then each hole's ring, closed, after one NaN) in outline_x/outline_y along
+# `vertex`, outline_vertices of them in use, NaN after; its tethers (x, y, radius) along
+# `tether`, n_tethers of them, NaN after. The dimensions are fixed: MAX_TETHERS is the
+# generator's limit (MouldParams.max_tethers); MAX_VERTICES is far above the most a generated
+# mould was seen to need (docs/moulds.md, "The mould in the store"). A mould needing more is
+# refused (write_inputs), never cut.
+GEOMETRY_ARRAYS = ("outline_x", "outline_y", "outline_vertices", "tether_x", "tether_y",
+                   "tether_r")
+MAX_VERTICES = 2048
+MAX_TETHERS = MouldParams().max_tethers
 SIMULATION_VARIABLES = ("sim_seed", "n_cells", "energy", "max_force", "solver", "solver_seconds",
                         "hardware")
 EXPECTED_VARIABLES = ("fields_mean", "fields_std", "n_replicas_ok")
 # Who writes each array, and so which step rewrites a damaged chunk of it: the mould stage
 # (write_inputs), the fields stage (write_sample), the store's creation (the layout, which
 # restore_layout rewrites) and the dataset stage (write_expected, EXPECTED_VARIABLES).
-MOULD_ARRAYS = ("inputs", "lattice", *MOULD_VARIABLES, "inputs_ready")
+MOULD_ARRAYS = ("inputs", "lattice", *MOULD_VARIABLES, *GEOMETRY_ARRAYS, "inputs_ready")
 SAMPLE_ARRAYS = ("fields", *SIMULATION_VARIABLES, "status")
 COORDINATES = ("sample", "channel", "cell", "field", "replicated", "x", "y")
 # CF attributes of every array (units "1": dimensionless; "l0": the cells' spacing, the
@@ -123,6 +141,21 @@ VARIABLE_ATTRS = {
     "order": {"units": "1", "long_name": "rotation order of the mould's symmetry"},
     "removal": {"long_name": "the generator's tether removal rule"},
     "n_tethers": {"units": "1", "long_name": "tethers (posts) of the mould"},
+    **{f"outline_{axis}": {
+        "units": "l0", "long_name": f"{axis} of the mould outline's vertices: the exterior ring "
+        "(closed, its first vertex repeated last), then each hole's ring (closed) after one "
+        "NaN; outline_vertices in use, NaN after",
+        "frame": f"box coordinates, the frame of the {axis} coordinate: from the box's "
+        f"{'left' if axis == 'x' else 'lower'} edge, in cell spacings l0"} for axis in "xy"},
+    "outline_vertices": {"units": "1", "long_name": "entries of outline_x and outline_y in use "
+                         "(the rings' vertices and the NaN between rings)"},
+    **{f"tether_{axis}": {
+        "units": "l0", "long_name": f"{axis} of each tether's (post's) centre; n_tethers in "
+        "use, NaN after",
+        "frame": f"box coordinates, the frame of the {axis} coordinate: from the box's "
+        f"{'left' if axis == 'x' else 'lower'} edge, in cell spacings l0"} for axis in "xy"},
+    "tether_r": {"units": "l0", "long_name": "radius of each tether (post); n_tethers in use, "
+                 "NaN after"},
     "inputs_ready": {"long_name": "flag: the mould's inputs are written"},
     "sim_seed": {"long_name": "the simulation's seed"},
     "n_cells": {"units": "1", "long_name": "cells of the mould (N_c, the lattice's sites)"},
@@ -251,6 +284,10 @@ def _expected_arrays(spec: StoreSpec) -> dict:
     }
     for name, (dtype, _) in SAMPLE_VARIABLES.items():
         arrays[name] = ((n,), (1,), dtype, ("sample",))
+    for name, dim, size in (("outline_x", "vertex", MAX_VERTICES),
+                            ("outline_y", "vertex", MAX_VERTICES),
+                            *((f"tether_{a}", "tether", MAX_TETHERS) for a in "xyr")):
+        arrays[name] = ((n, size), (1, size), "float64", ("sample", dim))
     if replicated:
         for name in ("fields_mean", "fields_std"):
             arrays[name] = ((replicated, f, p, p), (1, f, p, p), "float32",
@@ -288,7 +325,7 @@ def create_store(path: str | Path, spec: StoreSpec) -> bool:
                 _coordinate(group, name, layout[name])
         for name, (shape, chunks, dtype, dims) in _expected_arrays(spec).items():
             fill = SAMPLE_VARIABLES[name][1] if name in SAMPLE_VARIABLES else (
-                np.nan if dtype == "float32" else 0)
+                np.nan if dtype.startswith("float") else 0)
             group.create_array(name, shape=shape, chunks=chunks, dtype=dtype, fill_value=fill,
                                dimension_names=dims, attributes=VARIABLE_ATTRS.get(name, {}),
                                **CODECS)
@@ -344,9 +381,14 @@ def open_group(path: str | Path, mode: str = "r") -> zarr.Group:
                 f"(attribute 'format' is {attrs.get('format')!r}, expected {FORMAT!r})"
             )
         if attrs.get("format_version") != FORMAT_VERSION:
+            version = attrs.get("format_version")
+            added = [text for v, text in sorted(FORMAT_CHANGES.items())
+                     if isinstance(version, int) and v > version]
             raise StoreError(
-                f"{path} has store format version {attrs.get('format_version')}, this code "
-                f"reads version {FORMAT_VERSION}: rebuild it (a new `results` folder)"
+                f"{path} has store format version {version}, this code "
+                f"reads version {FORMAT_VERSION}" + (f" (which adds {'; '.join(added)})"
+                                                     if added else "")
+                + ": rebuild it (a new `results` folder)"
             )
         expected = {"sample", "channel", "cell", "field", *_expected_arrays(spec_of(group)).keys()}
         # Consolidated metadata still lists an array whose folder was deleted: look on disk.
@@ -414,10 +456,66 @@ def replica_samples(path: str | Path, mould: int) -> list[int]:
     return [sample_index(counts, mould, r) for r in range(counts[mould])]
 
 
+def outline_arrays(polygon, limit: int = MAX_VERTICES) -> tuple[np.ndarray, np.ndarray, int]:
+    """(x, y, count): `polygon`'s rings as the store keeps them (GEOMETRY_ARRAYS): the
+    exterior ring closed, then each hole's ring closed after one NaN, float64, NaN-padded to
+    `limit`. ValueError when it is not one Polygon with finite vertices or needs more than
+    `limit` entries (it is never cut)."""
+    if not isinstance(polygon, Polygon) or polygon.is_empty:
+        raise ValueError(f"the outline is a {getattr(polygon, 'geom_type', type(polygon).__name__)}"
+                         ", not one non-empty Polygon")
+    rings = [np.asarray(polygon.exterior.coords, dtype=np.float64)[:, :2]]
+    rings += [np.asarray(ring.coords, dtype=np.float64)[:, :2] for ring in polygon.interiors]
+    gap = np.full((1, 2), np.nan)
+    joined = np.concatenate([part for k, ring in enumerate(rings)
+                             for part in ((gap, ring) if k else (ring,))])
+    if not np.isfinite(np.concatenate(rings)).all():
+        raise ValueError("the outline has NaN or infinite vertices")
+    count = len(joined)
+    if count > limit:
+        raise ValueError(f"the outline needs {count} entries ({len(rings[0])} exterior vertices, "
+                         f"{len(rings) - 1} hole(s)), the store holds at most {limit} "
+                         "(MAX_VERTICES)")
+    padded = np.full((limit, 2), np.nan)
+    padded[:count] = joined
+    return padded[:, 0].copy(), padded[:, 1].copy(), count
+
+
+def outline_polygon(x, y, count: int):
+    """The shapely Polygon `outline_arrays` stored: the inverse, exact to the last bit."""
+    count = int(count)
+    if count < 4:
+        raise ValueError(f"an outline of {count} entries holds no polygon (not written?)")
+    xy = np.column_stack([np.asarray(x, np.float64)[:count], np.asarray(y, np.float64)[:count]])
+    gaps = np.flatnonzero(np.isnan(xy[:, 0]))
+    rings = np.split(xy, gaps)
+    rings = [rings[0]] + [ring[1:] for ring in rings[1:]]
+    return Polygon(rings[0], rings[1:])
+
+
+def tether_arrays(tethers, limit: int = MAX_TETHERS) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(x, y, r) of `tethers` (n, 3), float64, NaN-padded to `limit`; ValueError when they
+    are not (n, 3) finite numbers or more than `limit` (never cut)."""
+    tethers = np.asarray(tethers, dtype=np.float64)
+    if tethers.size == 0:
+        tethers = tethers.reshape(0, 3)
+    if tethers.ndim != 2 or tethers.shape[1] != 3:
+        raise ValueError(f"tethers have shape {tethers.shape}, expected (n, 3): x, y, radius")
+    if not np.isfinite(tethers).all():
+        raise ValueError("tethers hold NaN or infinite values")
+    if len(tethers) > limit:
+        raise ValueError(f"{len(tethers)} tethers, the store holds at most {limit} (MAX_TETHERS)")
+    padded = np.full((limit, 3), np.nan)
+    padded[:len(tethers)] = tethers
+    return padded[:, 0].copy(), padded[:, 1].copy(), padded[:, 2].copy()
+
+
 def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: dict,
-                 lattice: np.ndarray) -> None:
-    """Write one mould's input channels (masks), lattice channels (condor.data.inputs) and metadata
-    into every replica, then mark them ready."""
+                 lattice: np.ndarray, *, polygon, tethers) -> None:
+    """Write one mould's input channels (masks), lattice channels (condor.data.inputs),
+    metadata and geometry (its outline `polygon`, shapely, and `tethers` (n, 3): x, y, radius
+    in l0, box coordinates; GEOMETRY_ARRAYS) into every replica, then mark them ready.
+    Everything is checked before anything is written."""
     group = open_group(path, mode="r+")
     pixels = group.attrs["pixels"]
     for name, array in (("inputs", inputs), ("lattice", lattice)):
@@ -426,6 +524,17 @@ def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: d
                              f"needs (2, {pixels}, {pixels})")
     if not np.all(np.isfinite(lattice)):
         raise ValueError(f"lattice channels of mould {mould} hold NaN or inf")
+    try:
+        outline_x, outline_y, vertices = outline_arrays(polygon)
+        tether_x, tether_y, tether_r = tether_arrays(tethers)
+    except ValueError as err:
+        raise ValueError(f"mould {mould}: {err}") from err
+    n_tethers = int(np.isfinite(tether_r).sum())
+    if n_tethers != mould_meta["n_tethers"]:
+        raise ValueError(f"mould {mould}: {n_tethers} tethers given, its metadata says "
+                         f"n_tethers = {mould_meta['n_tethers']}")
+    geometry = {"outline_x": outline_x, "outline_y": outline_y, "outline_vertices": vertices,
+                "tether_x": tether_x, "tether_y": tether_y, "tether_r": tether_r}
     samples = replica_samples(path, mould)
     with quiet_zarr():
         for i in samples:
@@ -433,6 +542,8 @@ def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: d
             group["lattice"][i] = np.asarray(lattice, dtype="float32")
             for name in MOULD_VARIABLES:
                 group[name][i] = mould_meta[name]
+            for name in GEOMETRY_ARRAYS:
+                group[name][i] = geometry[name]
             group["inputs_ready"][i] = 1
 
 

@@ -4,7 +4,8 @@ The workflow's scripts and the `condor` CLI call these and nothing else:
 
 1. `init_store`: warm numba's kernel cache, create the store (or accept the matching one) and
    write the folder's manifest;
-2. `make_moulds`: generate and validate a batch of moulds; geometry JSON + the store's inputs;
+2. `make_moulds`: generate and validate a batch of moulds; geometry JSON + the store's inputs
+   and geometry;
 3. `simulate_batch`: every replica of every mould of a batch, one result file each (a failed
    simulation is a result too, with its reason);
 4. `write_fields`: rasterise each ok result into the store; failures keep their reason (and
@@ -103,9 +104,11 @@ def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | N
 
 
 def write_mould_inputs(config: Config, store: str | Path, mould: Mould) -> None:
-    """One mould's input channels and metadata into every replica of it in the store."""
+    """One mould's input channels, metadata and geometry (outline and tethers) into every
+    replica of it in the store."""
     write_inputs(store, mould.mould_id, input_channels(mould, config.scene.pixels),
-                 mould_metadata(mould), lattice=model_inputs.of_mould(mould, config.scene))
+                 mould_metadata(mould), lattice=model_inputs.of_mould(mould, config.scene),
+                 polygon=mould.polygon, tethers=mould.tethers)
 
 
 def load_moulds(path: str | Path) -> list:
