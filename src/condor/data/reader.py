@@ -7,7 +7,7 @@ it, feed it to PyTorch, and read its card.
     stats = condor.dataset.field_statistics(ds)          # per-field mean/std/min/max (train)
     loader = torch.utils.data.DataLoader(condor.dataset.torch_dataset(ds, "train"), batch_size=8)
 
-Layout (DESIGN.md "The dataset contract", condor.data.store): `inputs` (sample, channel, y, x) 0/1
+Layout (docs/architecture.md, condor.data.store): `inputs` (sample, channel, y, x) 0/1
 with channels mould, tether; `lattice` (sample, cell, y, x) float32, the mould's initial mobile
 and fixed cells rasterised with the fields' kernel in units of a full FCC column
 (condor.data.inputs: what the default surrogate reads); `fields` (sample, field, y, x) float32, the 8 un-normalised fields

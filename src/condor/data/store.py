@@ -1,4 +1,4 @@
-"""The dataset store: one Zarr group described by xarray (contract in DESIGN.md).
+"""The dataset store: one Zarr group described by xarray (layout: docs/architecture.md).
 
 Samples and replicas. A mould may be simulated with several seeds (replicas). Every
 simulation is one sample: samples 0..n_moulds-1 are replica 0 of moulds 0..n_moulds-1 (so
