@@ -213,6 +213,106 @@ def test_the_displacement_minimises_the_bond_energy():
         assert _energy(masks, u + step) > e0
 
 
+def _loop_system(masks):
+    """The network's equilibrium system, assembled pixel by pixel with loops (independently
+    of inputs.spring_displacement): the sparse Hessian K of the bond energy over the free
+    pixels' (x, y) plus the 1e-9 ridge, f = -grad at u = 0, and the free pixels (y, x)."""
+    import scipy.sparse as sparse
+
+    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
+    free = domain & ~fixed
+    number = {p: n for n, p in enumerate(zip(*np.nonzero(free)))}
+    H, W = domain.shape
+    entries, f = {}, np.zeros(2 * len(number))
+    for y in range(H):
+        for x in range(W):
+            for (dy, dx), k in inputs.SPRING_BONDS:
+                if not (0 <= y + dy < H and 0 <= x + dx < W and domain[y, x]
+                        and domain[y + dy, x + dx]):
+                    continue
+                length = np.hypot(dx, dy)
+                n = np.array([dx, dy]) / length
+                ends = [number.get((y, x)), number.get((y + dy, x + dx))]
+                for e, sign in zip(ends, (1.0, -1.0)):
+                    if e is not None:
+                        f[2 * e:2 * e + 2] += sign * k * length * n
+                for e1, s1 in zip(ends, (1.0, -1.0)):
+                    for e2, s2 in zip(ends, (1.0, -1.0)):
+                        if e1 is None or e2 is None:
+                            continue
+                        for a in range(2):
+                            for b in range(2):
+                                key = (2 * e1 + a, 2 * e2 + b)
+                                entries[key] = entries.get(key, 0.0) + s1 * s2 * k * n[a] * n[b]
+    rows, cols = zip(*entries)
+    K = sparse.csc_matrix((list(entries.values()), (rows, cols)), shape=(len(f), len(f)))
+    return K + 1e-9 * sparse.identity(len(f), format="csc"), f, free
+
+
+def _loop_stress(masks, u):
+    """sigma_xx, sigma_yy, sigma_xy of displacements u (H, W, 2), by loops over the bonds."""
+    domain = (masks[0] > 0) | (masks[1] > 0)
+    H, W = domain.shape
+    stress = np.zeros((3, H, W))
+    for y in range(H):
+        for x in range(W):
+            for (dy, dx), k in inputs.SPRING_BONDS:
+                if 0 <= y + dy < H and 0 <= x + dx < W and domain[y, x] and \
+                        domain[y + dy, x + dx]:
+                    length = np.hypot(dx, dy)
+                    n = np.array([dx, dy]) / length
+                    t = k * (n @ (u[y + dy, x + dx] - u[y, x]) + length)
+                    for c, (a, b) in enumerate(((0, 0), (1, 1), (0, 1))):
+                        stress[c, y, x] += 0.5 * t * n[a] * n[b] * length
+                        stress[c, y + dy, x + dx] += 0.5 * t * n[a] * n[b] * length
+    return stress
+
+
+def test_the_banded_solve_agrees_with_a_dense_solve():
+    """spring_displacement (a banded Cholesky over the free pixels numbered along the narrower
+    direction) solves the loop-assembled system: against numpy's dense solve on small moulds,
+    wide and tall; and the stress channels agree where the displacement is not determined
+    by the springs alone: a pixel held by one diagonal bond (free to swing about it) and a
+    piece no post holds (it contracts freely, so it carries no stress); the 1e-9 ridge sets
+    those motions, which stretch no spring."""
+    wide = np.zeros((2, 7, 12), np.uint8)
+    wide[0, 1:6, 1:11] = 1
+    wide[1, 3, 1] = wide[1, 2, 10] = 1
+    hinged = wide.copy()
+    hinged[0, 0, 0] = 1  # joined to the mould by one diagonal bond
+    floating = np.zeros((2, 9, 9), np.uint8)
+    floating[0, 1:4, 1:8] = floating[0, 6:8, 2:6] = 1  # a strip held by posts, an island free
+    floating[1, 2, 1] = floating[1, 2, 7] = 1
+    for masks in (wide, np.ascontiguousarray(wide.transpose(0, 2, 1)), hinged, floating):
+        K, f, free = _loop_system(masks)
+        expected = np.zeros(free.shape + (2,))
+        expected[free] = np.linalg.solve(K.toarray(), f).reshape(-1, 2)
+        u = inputs.spring_displacement(masks)
+        assert np.all(u[~free] == 0)
+        if masks.shape[1:] in ((7, 12), (12, 7)) and not masks[0, 0, 0]:
+            np.testing.assert_allclose(u, expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+        reference = _loop_stress(masks, expected)
+        np.testing.assert_allclose(inputs.spring_stress(masks, shear=True), reference, rtol=0,
+                                   atol=1e-6 * np.abs(reference).max())
+    stress = inputs.spring_stress(floating)
+    assert np.abs(stress[:, 1:4]).max() > 0.5 and np.abs(stress[:, 6:8]).max() < 1e-6
+
+
+def test_the_banded_solve_agrees_with_a_sparse_lu_solve_on_a_default_mould():
+    """On a default mould (64 px; about 3,200 unknowns) the banded Cholesky solve equals
+    SuperLU's solve of the loop-assembled system (what spring_displacement solved before) to
+    round-off, and so do the stress channels the network reads (float32)."""
+    import scipy.sparse.linalg as sparse_linalg
+
+    for mould_id in (4, 6):
+        masks = input_channels(_mould(mould_id), SCENE.pixels)
+        K, f, free = _loop_system(masks)
+        expected = sparse_linalg.spsolve(K, f).reshape(-1, 2)
+        u = inputs.spring_displacement(masks)
+        assert free.sum() > 1000
+        np.testing.assert_allclose(u[free], expected, rtol=0, atol=1e-10 * np.abs(expected).max())
+
+
 @pytest.mark.parametrize("k", range(1, 8))
 def test_stress_channels_transform_as_the_augmentation_says(k):
     """For every planar symmetry g: the stress of the transformed mould is the transformed

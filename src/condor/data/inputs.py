@@ -134,16 +134,45 @@ def estimate_lattice_channels(masks: np.ndarray, pixel_size: float, depth: float
 
 
 def _spring_bonds(domain: np.ndarray):
-    """Bonds of the network on the True pixels of `domain` (H, W): per SPRING_BONDS entry,
-    the (row, col) arrays of both ends, the stiffness, the length and the unit (x, y) vector."""
+    """Every bond of the network on the True pixels of `domain` (H, W), all SPRING_BONDS
+    directions at once: the flat (row-major) pixel index of each bond's two ends (start,
+    end = start + the bond's offset), its stiffness, its length and its unit (x, y) vector
+    (each an array over the bonds; the unit vectors (B, 2))."""
     H, W = domain.shape
+    flat = np.arange(H * W).reshape(H, W)
+    starts, ends, stiffness, lengths, units = [], [], [], [], []
     for (dy, dx), k in SPRING_BONDS:
         y0, y1, x0, x1 = max(0, -dy), min(H, H - dy), max(0, -dx), min(W, W - dx)
         both = domain[y0:y1, x0:x1] & domain[y0 + dy:y1 + dy, x0 + dx:x1 + dx]
-        ys, xs = np.nonzero(both)
-        ys, xs = ys + y0, xs + x0
+        start = flat[y0:y1, x0:x1][both]
         length = math.hypot(dx, dy)
-        yield ys, xs, ys + dy, xs + dx, k, length, np.array([dx, dy]) / length
+        starts.append(start)
+        ends.append(start + dy * W + dx)
+        stiffness.append(np.full(len(start), k))
+        lengths.append(np.full(len(start), length))
+        units.append(np.broadcast_to(np.array([dx, dy]) / length, (len(start), 2)))
+    return (np.concatenate(starts), np.concatenate(ends), np.concatenate(stiffness),
+            np.concatenate(lengths), np.concatenate(units))
+
+
+def _banded_order(free: np.ndarray, start: np.ndarray, end: np.ndarray):
+    """The free pixels numbered row by row or column by column, whichever keeps every pair of
+    bonded free pixels closer in the numbering: (index (H*W,) flat pixel -> its number, or -1
+    for a pixel that is not free; the largest number difference across a bond)."""
+    H, W = free.shape
+    best = None
+    for by_columns in (False, True):
+        index = np.full(H * W, -1, dtype=np.int64)
+        where = np.flatnonzero((free.T if by_columns else free).ravel())
+        if by_columns:  # a flat index of the transpose, x * H + y, back to y * W + x
+            where = (where % H) * W + where // H
+        index[where] = np.arange(len(where))
+        i, j = index[start], index[end]
+        both = (i >= 0) & (j >= 0)
+        width = int(np.abs(i[both] - j[both]).max()) if both.any() else 0
+        if best is None or width < best[1]:
+            best = (index, width)
+    return best
 
 
 def spring_displacement(masks: np.ndarray) -> np.ndarray:
@@ -151,41 +180,59 @@ def spring_displacement(masks: np.ndarray) -> np.ndarray:
     contraction strain, of the linear spring network over mould | tether whose rest lengths
     shrink by that strain, the tether pixels held fixed: the minimiser of
     E(u) = sum over bonds of k/2 (n . (u_j - u_i) + |d|)^2. Zero without posts (the free
-    network contracts without stress; its rigid motions are pinned by a 1e-9 ridge)."""
-    import scipy.sparse as sparse
-    import scipy.sparse.linalg as sparse_linalg
+    network contracts without stress; its rigid motions are pinned by a 1e-9 ridge).
+
+    One direct solve of K u = f (K the Hessian of E over the free pixels' 2 coordinates,
+    f = -grad E at u = 0): K is symmetric positive definite (the ridge pins a part the posts
+    do not hold) and banded once the free pixels are numbered along the mould's narrower
+    direction (_banded_order: about 2 x 50 + 1 diagonals at 64 px), so a banded Cholesky
+    (LAPACK's pbsv) solves it; it agrees with a general sparse LU solve of the same system to
+    round-off (tested), several times faster."""
+    import scipy.linalg
 
     masks = np.asarray(masks)
     if masks.ndim != 3 or masks.shape[0] != 2:
         raise ValueError(f"masks must have shape (2, H, W), got {masks.shape}")
     domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
-    u = np.zeros(domain.shape + (2,))
+    H, W = domain.shape
+    u = np.zeros((H * W, 2))
     free = domain & ~fixed
     if not fixed.any() or not free.any():
-        return u
-    index = np.full(domain.shape, -1, dtype=np.int64)
-    index[free] = np.arange(int(free.sum()))
-    n = 2 * int(free.sum())
-    rows, cols, values, rhs = [], [], [], np.zeros(n)
-    for ys, xs, yt, xt, k, length, unit in _spring_bonds(domain):
-        i, j = index[ys, xs], index[yt, xt]
-        block = k * np.outer(unit, unit)
-        for p, q, sign in ((i, i, 1.0), (j, j, 1.0), (i, j, -1.0), (j, i, -1.0)):
-            both = (p >= 0) & (q >= 0)
-            for a in range(2):
-                for b in range(2):
-                    rows.append(2 * p[both] + a)
-                    cols.append(2 * q[both] + b)
-                    values.append(np.full(int(both.sum()), sign * block[a, b]))
-        # -dE/du at u = 0: each bond pulls its ends together with k |d|
-        for p, sign in ((i, 1.0), (j, -1.0)):
-            mobile = p >= 0
-            for a in range(2):
-                np.add.at(rhs, 2 * p[mobile] + a, sign * k * length * unit[a])
-    K = sparse.csc_matrix((np.concatenate(values), (np.concatenate(rows), np.concatenate(cols))),
-                          shape=(n, n)) + sparse.identity(n, format="csc") * 1e-9
-    u[free] = sparse_linalg.spsolve(K, rhs).reshape(-1, 2)
-    return u
+        return u.reshape(H, W, 2)
+    start, end, k, length, unit = _spring_bonds(domain)
+    index, width = _banded_order(free, start, end)
+    n, kd = 2 * int(free.sum()), 2 * width + 1  # unknowns; superdiagonals of K
+    i, j = index[start], index[end]
+    # a bond's 2x2 block k n n^T: + on both ends' diagonal blocks, - between two free ends;
+    # the upper triangle only, stored as LAPACK's upper band: K[r, c] at ab[kd + r - c, c]
+    kxx, kxy, kyy = k * unit[:, 0] ** 2, k * unit[:, 0] * unit[:, 1], k * unit[:, 1] ** 2
+    rows, cols, values = [], [], []
+    for p in (i, j):
+        on = p >= 0
+        q = 2 * p[on]
+        rows += [q, q, q + 1]
+        cols += [q, q + 1, q + 1]
+        values += [kxx[on], kxy[on], kyy[on]]
+    on = (i >= 0) & (j >= 0)
+    lo, hi = 2 * np.minimum(i[on], j[on]), 2 * np.maximum(i[on], j[on])
+    rows += [lo, lo, lo + 1, lo + 1]
+    cols += [hi, hi + 1, hi, hi + 1]
+    values += [-kxx[on], -kxy[on], -kxy[on], -kyy[on]]
+    rows, cols = np.concatenate(rows), np.concatenate(cols)
+    band = np.bincount((kd + rows - cols) * n + cols, np.concatenate(values),
+                       minlength=(kd + 1) * n).reshape(kd + 1, n)
+    band[kd] += 1e-9
+    # -dE/du at u = 0: each bond pulls its ends together with k |d|
+    pull = (k * length)[:, None] * unit
+    rhs = np.zeros(n)
+    for p, sign in ((i, 1.0), (j, -1.0)):
+        on = p >= 0
+        for a in range(2):
+            rhs += np.bincount(2 * p[on] + a, sign * pull[on, a], minlength=n)
+    solved = scipy.linalg.solveh_banded(band, rhs, check_finite=False)
+    numbered = index >= 0
+    u[numbered] = solved.reshape(-1, 2)[index[numbered]]
+    return u.reshape(H, W, 2)
 
 
 def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
@@ -195,19 +242,20 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     summed over the pixel's bonds; units of k per unit contraction strain; 0 outside the
     mould and its posts. `shear`: (3, H, W), SHEAR_CHANNEL (a = x, b = y) third."""
     masks = np.asarray(masks)
-    u = spring_displacement(masks)
+    u = spring_displacement(masks).reshape(-1, 2)
     domain = (masks[0] > 0) | (masks[1] > 0)
+    H, W = domain.shape
     components = ((0, 0), (1, 1), (0, 1)) if shear else ((0, 0), (1, 1))
-    stress = np.zeros((len(components),) + domain.shape)
+    stress = np.zeros((len(components), H * W))
     if not np.any(masks[1] > 0):
-        return stress.astype(np.float32)
-    for ys, xs, yt, xt, k, length, unit in _spring_bonds(domain):
-        tension = k * ((u[yt, xt] - u[ys, xs]) @ unit + length)
-        for a, (i, j) in enumerate(components):
-            share = 0.5 * tension * unit[i] * unit[j] * length
-            np.add.at(stress[a], (ys, xs), share)
-            np.add.at(stress[a], (yt, xt), share)
-    return stress.astype(np.float32)
+        return stress.reshape(-1, H, W).astype(np.float32)
+    start, end, k, length, unit = _spring_bonds(domain)
+    tension = k * (np.einsum("ba,ba->b", u[end] - u[start], unit) + length)
+    for c, (a, b) in enumerate(components):
+        share = 0.5 * tension * unit[:, a] * unit[:, b] * length
+        stress[c] = np.bincount(start, share, minlength=H * W) + \
+            np.bincount(end, share, minlength=H * W)
+    return stress.reshape(-1, H, W).astype(np.float32)
 
 
 # Stress channels of the moulds solved last (a mould's masks and `shear` -> its channels),
