@@ -30,12 +30,37 @@ def default_device(device=None) -> torch.device:
 
 def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
     """Physical fields (float64) and spread (or None) of one network run on x."""
-    out = model(x.contiguous())
+    return _decode_output(scaling, model(x.contiguous()), n_cells)
+
+
+def _decode_output(scaling, out: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
+    """Physical fields (float64) and spread (or None) of the network's output `out`."""
     if getattr(scaling, "kind", None) == "physics":
         fields, spread = scaling.decode(out.double(), torch.tensor(np.asarray(n_cells), dtype=torch.float64,
                                                                         device=out.device))
         return fields.cpu().numpy(), spread.cpu().numpy()
     return scaling.unscale(out.double().cpu().numpy()), None
+
+
+def _field_maps() -> tuple[np.ndarray, np.ndarray]:
+    """Per planar transform k (0..7), the channel maps of the symmetrisation's fields: A[k]
+    (8, 8) sums the inverse of k and of its z-flipped twin k + FLIP_Z on a prediction's
+    fields (channel f of the sum = sum over g of A[k, f, g] field g, pixels already moved
+    back), and |A|[k] does the same for variances (the signs do not apply). Read off
+    apply_symmetry on one-pixel unit fields, so they are its maps exactly (entries 0, +-1, +-2)."""
+    n = len(FIELD_NAMES)
+    unit = np.eye(n).reshape(n, n, 1, 1)  # unit field g as sample g
+    signed, absolute = [], []
+    for k in range(N_SYMMETRIES // 2):
+        maps = [apply_symmetry(k + z, fields=unit, inverse=True)[1][..., 0, 0].T
+                for z in (0, N_SYMMETRIES // 2)]
+        signed.append(maps[0] + maps[1])
+        absolute.append(np.abs(maps[0]) + np.abs(maps[1]))
+    return np.stack(signed), np.stack(absolute)
+
+
+_FIELD_MAPS = _field_maps()
+_DECODE_MOULDS = 2  # moulds decoded at a time by the batched symmetrisation
 
 
 def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
@@ -45,18 +70,39 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
     each of the 8 planar transforms runs once and its z-flipped twin is its output with SxSz,
     SySz negated: the mean of those two sets them to zero. `batched`: the 8 transforms run as
     one batch of the network (the same numbers in "eval" mode, where a sample's output does
-    not depend on its batch; a few times faster on a CPU)."""
+    not depend on its batch; a few times faster on a CPU), and the outputs are moved back
+    before they are decoded (the output map is the same at every pixel, and its softmax over
+    the grid does not depend on the pixels' order), so that one decode and one sum of the
+    fields' sign and swap maps (_FIELD_MAPS) finish the mean."""
     planar = range(N_SYMMETRIES // 2)  # the planar ones (FLIP_Z is the highest bit)
     if batched:
-        gxs = [apply_symmetry(k, inputs=x, input_kind=input_kind)[0] for k in planar]
-        cells = None if n_cells is None else np.tile(np.asarray(n_cells), len(gxs))
-        ys, spreads = _decode(model, scaling, torch.cat(gxs), cells)
         n = x.shape[0]
-        outputs = [(ys[k * n:(k + 1) * n], None if spreads is None else
-                    spreads[k * n:(k + 1) * n]) for k in planar]
-    else:
-        outputs = (_decode(model, scaling, apply_symmetry(k, inputs=x, input_kind=input_kind)[0],
-                           n_cells) for k in planar)
+        out = model(torch.cat([apply_symmetry(k, inputs=x, input_kind=input_kind)[0]
+                               for k in planar]).contiguous())
+        out = out.reshape((len(planar), n) + out.shape[1:])
+        signed, absolute = _FIELD_MAPS
+        mean, spread = None, None
+        # a few moulds at a time: the decode's many passes then run in the cache
+        for start in range(0, n, _DECODE_MOULDS):
+            part = slice(start, start + _DECODE_MOULDS)
+            # the pixels moved back, the channels as the network wrote them
+            moved = torch.stack([apply_symmetry(k, inputs=out[k, part], inverse=True)[0]
+                                 for k in planar])
+            m = moved.shape[1]
+            cells = None if n_cells is None else np.tile(np.asarray(n_cells)[part], len(planar))
+            ys, spreads = _decode_output(scaling, moved.reshape((-1,) + moved.shape[2:]), cells)
+            ys = ys.reshape((len(planar), m) + ys.shape[1:])
+            if mean is None:
+                mean = np.empty((n,) + ys.shape[2:])
+                spread = None if spreads is None else np.empty_like(mean)
+            mean[part] = np.einsum("kfg,kbghw->bfhw", signed, ys) / N_SYMMETRIES
+            if spreads is not None:
+                variances = (spreads ** 2).reshape(ys.shape)
+                spread[part] = np.sqrt(np.einsum("kfg,kbghw->bfhw", absolute, variances)
+                                       / N_SYMMETRIES)
+        return mean, spread
+    outputs = (_decode(model, scaling, apply_symmetry(k, inputs=x, input_kind=input_kind)[0],
+                       n_cells) for k in planar)
     total, variance = 0.0, 0.0
     for k, (y, spread) in zip(planar, outputs):
         for z in (0, N_SYMMETRIES // 2):
