@@ -125,6 +125,39 @@ def test_prediction_modes_and_restoration():
             pass
 
 
+@pytest.mark.parametrize("upsample", ["transpose", "resize", "bilinear"])
+@pytest.mark.parametrize("blocks", [0, 1])
+def test_the_inference_copy_is_the_eval_model_with_batchnorm_folded(upsample, blocks):
+    """inference_copy folds every BatchNorm into the convolution before it (also across a
+    bilinear resize, which commutes with a per-channel affine map) and drops dropout: in
+    channels_last order it gives the eval-mode outputs to float32 round-off, whatever the
+    running statistics; the model itself is left as it was."""
+    from condor.surrogate.models import inference_copy
+
+    torch.manual_seed(5)
+    g = UNetGenerator(UNetConfig.for_size(32, base=8, upsample=upsample, blocks=blocks,
+                                          in_channels=6, out_channels=16, output="linear"))
+    with torch.no_grad():
+        for m in g.modules():
+            if isinstance(m, TFBatchNorm2d):
+                m.running_mean.normal_()
+                m.running_var.uniform_(0.2, 3.0)
+                m.weight.normal_(1.0, 0.3)
+                m.bias.normal_()
+    g.train()
+    before = {k: v.clone() for k, v in g.state_dict().items()}
+    fast = inference_copy(g)
+    assert g.training and all(torch.equal(before[k], v) for k, v in g.state_dict().items())
+    assert not any(isinstance(m, (TFBatchNorm2d, nn.Dropout)) for m in fast.modules())
+    x = torch.rand(3, 6, 32, 32)
+    with torch.no_grad(), prediction_mode(g, "eval"):
+        expected = g(x)
+    with torch.inference_mode():
+        got = fast(x.contiguous(memory_format=torch.channels_last))
+    scale = expected.abs().max()
+    assert torch.allclose(got, expected, rtol=0, atol=2e-6 * scale)
+
+
 def test_losses_follow_paper_formulas():
     torch.manual_seed(3)
     real, fake = torch.randn(2, 1, 6, 6), torch.randn(2, 1, 6, 6)

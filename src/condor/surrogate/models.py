@@ -314,6 +314,61 @@ def prediction_mode(model: nn.Module, mode: str):
                 v.copy_(buffers[k])
 
 
+def _fold_into(conv: nn.Module, bn: "TFBatchNorm2d") -> None:
+    """conv's weights and bias times bn's eval-mode affine map (per output channel)."""
+    scale = bn.weight / torch.sqrt(bn.running_var + bn.eps)
+    shift = bn.bias - bn.running_mean * scale
+    axis = 1 if isinstance(conv, nn.ConvTranspose2d) else 0  # the output channels' axis
+    shape = [1] * conv.weight.dim()
+    shape[axis] = -1
+    conv.weight.mul_(scale.reshape(shape))
+    bias = shift if conv.bias is None else conv.bias * scale + shift
+    conv.bias = nn.Parameter(bias)
+
+
+def _folded(seq: nn.Sequential) -> nn.Sequential:
+    """seq with each TFBatchNorm2d that follows a convolution (alone, or in a resize step:
+    Upsample then conv, or conv then a bilinear Upsample, which commutes with a per-channel
+    affine map as its weights sum to 1) folded into it; other modules kept."""
+    out = []
+    for module in seq:
+        previous = out[-1] if out else None
+        if isinstance(module, TFBatchNorm2d) and previous is not None:
+            convs = [m for m in (previous if isinstance(previous, nn.Sequential) else [previous])
+                     if isinstance(m, (nn.Conv2d, nn.ConvTranspose2d))]
+            others = [m for m in (previous if isinstance(previous, nn.Sequential) else [])
+                      if not isinstance(m, (nn.Conv2d, nn.ConvTranspose2d, nn.Upsample))]
+            if len(convs) == 1 and not others:
+                _fold_into(convs[0], module)
+                continue
+        if isinstance(module, nn.Sequential):
+            module = _folded(module)
+        elif isinstance(module, _Residual):
+            module.body = _folded(module.body)
+        out.append(module)
+    return nn.Sequential(*out)
+
+
+@torch.no_grad()
+def inference_copy(model: UNetGenerator) -> UNetGenerator:
+    """A copy of `model` for "eval" prediction on a CPU: every BatchNorm folded into the
+    convolution before it (its running statistics and affine map scale that convolution's
+    output channels and set its bias: the same map, rounded differently), dropout removed,
+    weights in channels_last memory order (a channels_last input then runs oneDNN's
+    convolutions and the bilinear resizes without layout copies). Same outputs as `model` in
+    "eval" mode to float32 round-off (tested); never trained (no gradients)."""
+    import copy
+
+    folded = copy.deepcopy(model).eval()
+    for blocks in (folded.down, folded.up):
+        for k in range(len(blocks)):
+            blocks[k] = _folded(nn.Sequential(*(m for m in blocks[k]
+                                                if not isinstance(m, nn.Dropout))))
+    for param in folded.parameters():
+        param.requires_grad_(False)
+    return folded.to(memory_format=torch.channels_last)
+
+
 # --- losses, as the paper's Appendix writes them -------------------------------------------
 
 def l1_loss(generated: torch.Tensor, label: torch.Tensor) -> torch.Tensor:

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import contextlib
 import warnings
+import weakref
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,7 +19,7 @@ from condor.data.store import quiet_zarr
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
 from .samples import (FIELD_NAMES, INPUT_VARIABLES, N_SYMMETRIES, FieldScaling, apply_symmetry,
                    resample_fields, resample_inputs)
-from .models import UNetGenerator, prediction_mode
+from .models import UNetGenerator, inference_copy, prediction_mode
 from .physics import estimate_n_cells
 
 
@@ -28,9 +30,34 @@ def default_device(device=None) -> torch.device:
     return torch.device("cuda" if torch.cuda.is_available() else "cpu")
 
 
+# "eval" prediction's copies of the models it ran (inference_copy), each with the identity and
+# version of every tensor of the model's state it was made from: a model trained or loaded
+# since gets a new copy.
+_INFERENCE_COPIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
+
+
+def _inference_model(model: UNetGenerator) -> UNetGenerator:
+    """`model`'s inference_copy (BatchNorm folded, channels_last), made once per state."""
+    state = tuple((t.data_ptr(), t._version) for t in model.state_dict().values())
+    held = _INFERENCE_COPIES.get(model)
+    if held is None or held[0] != state:
+        held = (state, inference_copy(model))
+        _INFERENCE_COPIES[model] = held
+    return held[1]
+
+
+def _network(model, x: torch.Tensor) -> torch.Tensor:
+    """One run of the network on x, in the memory order its weights are in."""
+    first = next(model.parameters())
+    if first.dim() == 4 and first.is_contiguous(memory_format=torch.channels_last) and \
+            not first.is_contiguous():
+        return model(x.contiguous(memory_format=torch.channels_last))
+    return model(x.contiguous())
+
+
 def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
     """Physical fields (float64) and spread (or None) of one network run on x."""
-    return _decode_output(scaling, model(x.contiguous()), n_cells)
+    return _decode_output(scaling, _network(model, x).contiguous(), n_cells)
 
 
 def _decode_output(scaling, out: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
@@ -77,8 +104,8 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
     planar = range(N_SYMMETRIES // 2)  # the planar ones (FLIP_Z is the highest bit)
     if batched:
         n = x.shape[0]
-        out = model(torch.cat([apply_symmetry(k, inputs=x, input_kind=input_kind)[0]
-                               for k in planar]).contiguous())
+        out = _network(model, torch.cat([apply_symmetry(k, inputs=x, input_kind=input_kind)[0]
+                                         for k in planar]))
         out = out.reshape((len(planar), n) + out.shape[1:])
         signed, absolute = _FIELD_MAPS
         mean, spread = None, None
@@ -90,7 +117,8 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
                                  for k in planar])
             m = moved.shape[1]
             cells = None if n_cells is None else np.tile(np.asarray(n_cells)[part], len(planar))
-            ys, spreads = _decode_output(scaling, moved.reshape((-1,) + moved.shape[2:]), cells)
+            ys, spreads = _decode_output(scaling, moved.reshape((-1,) + moved.shape[2:])
+                                         .contiguous(), cells)
             ys = ys.reshape((len(planar), m) + ys.shape[1:])
             if mean is None:
                 mean = np.empty((n,) + ys.shape[2:])
@@ -140,15 +168,20 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
     n_fields = len(FIELD_NAMES) if physics else model.cfg.out_channels
     out = np.empty((inputs.shape[0], n_fields, native, native), dtype=np.float32)
     spread_out = np.empty_like(out) if physics else None
-    with prediction_mode(model, mode), torch.no_grad():
+    # "eval" runs the network's inference_copy (the same map, BatchNorm folded; always in
+    # eval mode, so the model's own flags and buffers are left alone)
+    fast = mode == "eval" and isinstance(model, UNetGenerator)
+    network = _inference_model(model) if fast else model
+    with contextlib.nullcontext() if fast else prediction_mode(model, mode), \
+            torch.inference_mode():
         for start in range(0, inputs.shape[0], batch_size):
             part = slice(start, start + batch_size)
             x = resample_inputs(np.asarray(inputs[part], dtype=np.float32), size, inputs_kind)
             x = torch.from_numpy(np.ascontiguousarray(x)).to(device)
             cells = n_cells[part] if physics else None
-            y, spread = _symmetrised(model, scaling, x, cells, inputs_kind,
+            y, spread = _symmetrised(network, scaling, x, cells, inputs_kind,
                                      batched=mode == "eval") if symmetrise else \
-                _decode(model, scaling, x, cells)
+                _decode(network, scaling, x, cells)
             out[part] = resample_fields(y, native)
             if physics:
                 spread_out[part] = np.sqrt(resample_fields(spread ** 2, native))

@@ -1,0 +1,117 @@
+"""Prediction's fast path ("eval" mode: the BatchNorm-folded, channels_last inference copy; the
+8 planar transforms as one batch, moved back before one decode) gives what the model gives:
+one mould at a time or many, as the plain per-transform symmetrisation of the model itself,
+and it follows the model's weights when they change."""
+
+import numpy as np
+import pytest
+import torch
+
+from condor.data.moulds import MouldParams, input_channels
+from condor.model.scenes import get_scene
+from condor.stages.dataset import make_mould
+from condor.surrogate.checkpoint import save_checkpoint
+from condor.surrogate.models import TFBatchNorm2d, UNetGenerator, prediction_mode
+from condor.surrogate.physics import PhysicsHead
+from condor.surrogate.predict import Predictor, _symmetrised, run_model
+from condor.surrogate.variants import preset, train_config
+
+SCENE = get_scene("tiny")
+
+
+def _randomise_batchnorm(model, seed):
+    generator = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        for m in model.modules():
+            if isinstance(m, TFBatchNorm2d):
+                n = m.num_features
+                m.running_mean.copy_(0.3 * torch.randn(n, generator=generator))
+                m.running_var.copy_(0.5 + torch.rand(n, generator=generator))
+                m.weight.copy_(1.0 + 0.2 * torch.randn(n, generator=generator))
+                m.bias.copy_(0.2 * torch.randn(n, generator=generator))
+
+
+@pytest.fixture(scope="module")
+def checkpoint(tmp_path_factory):
+    """The default recipe (preset unet: physics head, mechanics inputs, symmetrised) at the
+    tiny scene's 32 px and base 8, random weights and BatchNorm statistics."""
+    cfg = train_config({**preset("unet"), "base": 8}, SCENE.pixels)
+    unet, _ = cfg.networks(SCENE.pixels)
+    torch.manual_seed(11)
+    model = UNetGenerator(unet)
+    _randomise_batchnorm(model, 12)
+    head = PhysicsHead(np.linspace(0.5, 2.0, 8), 0.7)
+    path = tmp_path_factory.mktemp("predict") / "unet.pt"
+    save_checkpoint({"generator": model.state_dict(), "generator_config": unet.to_dict(),
+                     "scaling": head.to_dict(), "config": cfg.to_dict(),
+                     "data": {"native_size": SCENE.pixels, "pixel_size": SCENE.pixel_size,
+                              "depth": SCENE.depth, "sigma": SCENE.sigma}}, path)
+    return path
+
+
+@pytest.fixture(scope="module")
+def moulds():
+    return [make_mould(SCENE, 5, i, MouldParams()) for i in range(5)]
+
+
+def test_batched_prediction_equals_one_mould_at_a_time(checkpoint, moulds):
+    predictor = Predictor(checkpoint, device="cpu")
+    assert predictor.symmetrise and predictor.mode == "eval"
+    masks = np.stack([input_channels(m, predictor.native) for m in moulds])
+    extra = predictor.mould_arguments(moulds)
+    together = predictor(masks, batch_size=16, **extra)
+    for k in range(len(moulds)):
+        alone = predictor(masks[k], batch_size=1, n_cells=extra["n_cells"][k],
+                          lattice=extra["lattice"][k])
+        for a, b in ((together.raw[k], alone.raw), (together.spread[k], alone.spread)):
+            np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(a).max())
+    # batches of 2 (the last one short) too
+    pairs = predictor(masks, batch_size=2, **extra)
+    np.testing.assert_allclose(pairs.raw, together.raw, rtol=1e-5,
+                               atol=1e-6 * np.abs(together.raw).max())
+
+
+def test_the_fast_path_equals_the_model_s_own_symmetrisation(checkpoint, moulds):
+    """run_model in "eval" mode (the inference copy, one batch of 8 transforms, one decode)
+    against the reference: the model itself in eval mode, each transform run and decoded on
+    its own and moved back field by field (apply_symmetry), in float64 until the end."""
+    predictor = Predictor(checkpoint, device="cpu")
+    masks = np.stack([input_channels(m, predictor.native) for m in moulds])
+    extra = predictor.mould_arguments(moulds)
+    from condor.data.inputs import stress_channels
+
+    x = np.concatenate([masks.astype(np.float32), extra["lattice"], stress_channels(masks)],
+                       axis=1)
+    fields, spread = run_model(predictor.model, predictor.scaling, x, "eval", 16, "cpu", True,
+                               extra["n_cells"], predictor.inputs_kind)
+    with prediction_mode(predictor.model, "eval"), torch.no_grad():
+        expected = _symmetrised(predictor.model, predictor.scaling, torch.from_numpy(x),
+                                extra["n_cells"], predictor.inputs_kind, batched=False)
+    for got, want in zip((fields, spread), expected):
+        np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
+    assert np.all(fields[:, 6:] == 0)  # SxSz, SySz: exactly zero, as before
+    np.testing.assert_allclose(fields[:, 0].sum(axis=(1, 2)), extra["n_cells"], rtol=1e-5)
+
+
+def test_the_inference_copy_follows_the_weights(checkpoint, moulds):
+    """The copy is remade when the model's weights or statistics change (trained, or loaded):
+    a prediction after the change is the new model's, not the old copy's."""
+    predictor = Predictor(checkpoint, device="cpu")
+    masks = np.stack([input_channels(m, predictor.native) for m in moulds[:2]])
+    extra = predictor.mould_arguments(moulds[:2])
+    first = predictor(masks, **extra).raw
+    assert np.array_equal(predictor(masks, **extra).raw, first)
+    _randomise_batchnorm(predictor.model, 99)
+    changed = predictor(masks, **extra).raw
+    assert not np.allclose(changed, first, rtol=1e-3)
+    fresh = UNetGenerator(predictor.model.cfg)
+    fresh.load_state_dict(predictor.model.state_dict())
+    x = predictor(masks, **extra)  # the same weights in another module: the same numbers
+    predictor.model = fresh
+    np.testing.assert_allclose(predictor(masks, **extra).raw, x.raw, rtol=1e-6,
+                               atol=1e-7 * np.abs(x.raw).max())
+    # a model left in training mode still predicts in eval mode
+    fresh.train()
+    np.testing.assert_allclose(predictor(masks, **extra).raw, x.raw, rtol=1e-6,
+                               atol=1e-7 * np.abs(x.raw).max())
+    assert fresh.training
