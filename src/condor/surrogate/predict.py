@@ -36,28 +36,62 @@ def default_device(device=None) -> torch.device:
 _INFERENCE_COPIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 
 
-def _inference_model(model: UNetGenerator) -> UNetGenerator:
-    """`model`'s inference_copy (BatchNorm folded, channels_last), made once per state."""
+# The arithmetic of "eval" prediction's network: float32 (the model's own), or bfloat16 (the
+# inference copy's weights and activations; CPUs with native bfloat16 arithmetic, such as
+# AVX512-BF16 or AMX, run it about twice as fast; measured on the default run's test moulds:
+# docs/surrogate.md, "Prediction time").
+PRECISIONS = ("float32", "bfloat16")
+
+
+def bfloat16_is_native() -> bool:
+    """True when this CPU has bfloat16 arithmetic (oneDNN's check: AVX512-BF16 or AMX)."""
+    try:
+        return bool(torch.backends.mkldnn.is_available()
+                    and torch.ops.mkldnn._is_mkldnn_bf16_supported())
+    except (AttributeError, RuntimeError):
+        return False
+
+
+def _inference_model(model: UNetGenerator, precision: str = "float32") -> UNetGenerator:
+    """`model`'s inference_copy (BatchNorm folded, channels_last) in `precision`, made once per
+    state of the model's weights."""
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision {precision!r} is not one of {PRECISIONS}")
     state = tuple((t.data_ptr(), t._version) for t in model.state_dict().values())
-    held = _INFERENCE_COPIES.get(model)
-    if held is None or held[0] != state:
-        held = (state, inference_copy(model))
-        _INFERENCE_COPIES[model] = held
-    return held[1]
+    held = _INFERENCE_COPIES.setdefault(model, {})
+    if precision not in held or held[precision][0] != state:
+        copy = inference_copy(model)
+        held[precision] = (state, copy if precision == "float32" else copy.to(torch.bfloat16))
+    return held[precision][1]
 
 
 def _network(model, x: torch.Tensor) -> torch.Tensor:
-    """One run of the network on x, in the memory order its weights are in."""
+    """One run of the network on x (float32), in the memory order and the precision of its
+    weights; float32 out."""
     first = next(model.parameters())
+    x = x.to(first.dtype)
     if first.dim() == 4 and first.is_contiguous(memory_format=torch.channels_last) and \
             not first.is_contiguous():
-        return model(x.contiguous(memory_format=torch.channels_last))
-    return model(x.contiguous())
+        out = model(x.contiguous(memory_format=torch.channels_last))
+    else:
+        out = model(x.contiguous())
+    return out if out.dtype == torch.float32 else out.float()
 
 
 def _decode(model, scaling, x: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
     """Physical fields (float64) and spread (or None) of one network run on x."""
     return _decode_output(scaling, _network(model, x).contiguous(), n_cells)
+
+
+def _decode_tensor(scaling, out: torch.Tensor, n_cells) -> tuple[torch.Tensor,
+                                                                 torch.Tensor | None]:
+    """Physical fields and spread (or None) of the network's output `out`, in out's dtype."""
+    if getattr(scaling, "kind", None) == "physics":
+        return scaling.decode(out, torch.as_tensor(np.asarray(n_cells), dtype=out.dtype,
+                                                   device=out.device))
+    lo, span = (torch.as_tensor(v, dtype=out.dtype, device=out.device)[:, None, None]
+                for v in (scaling.lo, scaling._span()))
+    return (out + 1) * (span / 2) + lo, None
 
 
 def _decode_output(scaling, out: torch.Tensor, n_cells) -> tuple[np.ndarray, np.ndarray | None]:
@@ -69,21 +103,26 @@ def _decode_output(scaling, out: torch.Tensor, n_cells) -> tuple[np.ndarray, np.
     return scaling.unscale(out.double().cpu().numpy()), None
 
 
-def _field_maps() -> tuple[np.ndarray, np.ndarray]:
-    """Per planar transform k (0..7), the channel maps of the symmetrisation's fields: A[k]
-    (8, 8) sums the inverse of k and of its z-flipped twin k + FLIP_Z on a prediction's
-    fields (channel f of the sum = sum over g of A[k, f, g] field g, pixels already moved
-    back), and |A|[k] does the same for variances (the signs do not apply). Read off
-    apply_symmetry on one-pixel unit fields, so they are its maps exactly (entries 0, +-1, +-2)."""
+def _field_maps() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per planar transform k (0..7), how the symmetrisation sums the inverse of k and of its
+    z-flipped twin k + FLIP_Z on a prediction's fields (pixels already moved back): field f of
+    the sum is weight[k, f] x field source[k, f], and of the variances' sum variance_weight[k,
+    f] x variance source[k, f] (the signs do not apply). Read off apply_symmetry on one-pixel
+    unit fields, so they are its maps exactly: each field comes from one field (a swap), with
+    weight +-2, or 0 where the twins cancel (SxSz, SySz)."""
     n = len(FIELD_NAMES)
     unit = np.eye(n).reshape(n, n, 1, 1)  # unit field g as sample g
-    signed, absolute = [], []
+    source, weight, variance_weight = [], [], []
     for k in range(N_SYMMETRIES // 2):
         maps = [apply_symmetry(k + z, fields=unit, inverse=True)[1][..., 0, 0].T
-                for z in (0, N_SYMMETRIES // 2)]
-        signed.append(maps[0] + maps[1])
-        absolute.append(np.abs(maps[0]) + np.abs(maps[1]))
-    return np.stack(signed), np.stack(absolute)
+                for z in (0, N_SYMMETRIES // 2)]  # (f, g): field f of the result from field g
+        absolute = np.abs(maps[0]) + np.abs(maps[1])
+        assert np.all((absolute != 0).sum(axis=1) == 1), "a symmetry that mixes fields"
+        g = absolute.argmax(axis=1)
+        source.append(g)
+        weight.append((maps[0] + maps[1])[np.arange(n), g])
+        variance_weight.append(absolute[np.arange(n), g])
+    return np.stack(source), np.stack(weight), np.stack(variance_weight)
 
 
 _FIELD_MAPS = _field_maps()
@@ -107,9 +146,13 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
         out = _network(model, torch.cat([apply_symmetry(k, inputs=x, input_kind=input_kind)[0]
                                          for k in planar]))
         out = out.reshape((len(planar), n) + out.shape[1:])
-        signed, absolute = _FIELD_MAPS
-        mean, spread = None, None
-        # a few moulds at a time: the decode's many passes then run in the cache
+        source, weight, variance_weight = (torch.from_numpy(a).to(out.device)
+                                           for a in _FIELD_MAPS)
+        weight, variance_weight = (w.to(torch.float32)[..., None, None]
+                                   for w in (weight, variance_weight))
+        means, spreads = [], []
+        # a few moulds at a time (float32: the network's own precision), so that the
+        # decode's many passes run in the cache
         for start in range(0, n, _DECODE_MOULDS):
             part = slice(start, start + _DECODE_MOULDS)
             # the pixels moved back, the channels as the network wrote them
@@ -117,18 +160,17 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
                                  for k in planar])
             m = moved.shape[1]
             cells = None if n_cells is None else np.tile(np.asarray(n_cells)[part], len(planar))
-            ys, spreads = _decode_output(scaling, moved.reshape((-1,) + moved.shape[2:])
-                                         .contiguous(), cells)
+            ys, spread = _decode_tensor(scaling, moved.reshape((-1,) + moved.shape[2:])
+                                        .contiguous(), cells)
             ys = ys.reshape((len(planar), m) + ys.shape[1:])
-            if mean is None:
-                mean = np.empty((n,) + ys.shape[2:])
-                spread = None if spreads is None else np.empty_like(mean)
-            mean[part] = np.einsum("kfg,kbghw->bfhw", signed, ys) / N_SYMMETRIES
-            if spreads is not None:
-                variances = (spreads ** 2).reshape(ys.shape)
-                spread[part] = np.sqrt(np.einsum("kfg,kbghw->bfhw", absolute, variances)
-                                       / N_SYMMETRIES)
-        return mean, spread
+            mean = sum(weight[k] * ys[k][:, source[k]] for k in planar) / N_SYMMETRIES
+            means.append(mean)
+            if spread is not None:
+                variances = spread.reshape(ys.shape) ** 2
+                spreads.append(torch.sqrt(sum(variance_weight[k] * variances[k][:, source[k]]
+                                              for k in planar) / N_SYMMETRIES))
+        return torch.cat(means).cpu().numpy(), \
+            torch.cat(spreads).cpu().numpy() if spreads else None
     outputs = (_decode(model, scaling, apply_symmetry(k, inputs=x, input_kind=input_kind)[0],
                        n_cells) for k in planar)
     total, variance = 0.0, 0.0
@@ -144,7 +186,8 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
 
 def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "eval",
               batch_size: int = 16, device=None, symmetrise: bool = False,
-              n_cells=None, inputs_kind: str = "mask") -> tuple[np.ndarray, np.ndarray | None]:
+              n_cells=None, inputs_kind: str = "mask",
+              precision: str = "float32") -> tuple[np.ndarray, np.ndarray | None]:
     """Model inputs (S, C, H, W) at the native resolution (0/1 masks, lattice or stress
     channels: `inputs_kind`) -> (physical fields (S, 8, H, W),
     spread (S, 8, H, W) or None) float32 at the native resolution. The model runs at its own
@@ -152,7 +195,8 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
     variances). Modes other than "eval" depend on the batch, so they run one sample at a time
     as the paper did. `symmetrise`: the mean over the 16 symmetries of the transformed-back
     predictions (8 model runs: see _symmetrised). `n_cells` (S,): N_c per mould, needed by a
-    physics head (condor.surrogate.physics)."""
+    physics head (condor.surrogate.physics). `precision` (PRECISIONS): the network's arithmetic
+    in "eval" mode (other modes run the model itself, in float32)."""
     device = default_device(device) if device is None else torch.device(device)
     native = inputs.shape[-1]
     size = model.cfg.size
@@ -171,7 +215,7 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
     # "eval" runs the network's inference_copy (the same map, BatchNorm folded; always in
     # eval mode, so the model's own flags and buffers are left alone)
     fast = mode == "eval" and isinstance(model, UNetGenerator)
-    network = _inference_model(model) if fast else model
+    network = _inference_model(model, precision) if fast else model
     with contextlib.nullcontext() if fast else prediction_mode(model, mode), \
             torch.inference_mode():
         for start in range(0, inputs.shape[0], batch_size):
@@ -210,7 +254,14 @@ class Predictor:
     """A loaded checkpoint, for repeated predictions."""
 
     def __init__(self, checkpoint_path, device=None, mode: str | None = None,
-                 symmetrise: bool | None = None):
+                 symmetrise: bool | None = None, precision: str = "float32"):
+        """`precision` (PRECISIONS): the network's arithmetic in "eval" mode; "bfloat16" is
+        about twice as fast on a CPU with bfloat16 arithmetic (bfloat16_is_native) and changes
+        the fields by a few 1e-3 of their largest value (docs/surrogate.md, "Prediction
+        time")."""
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision {precision!r} is not one of {PRECISIONS}")
+        self.precision = precision
         self.path = str(checkpoint_path)
         self.device = default_device(device)
         state = load_checkpoint(checkpoint_path)
@@ -334,7 +385,8 @@ class Predictor:
         network_inputs = np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
                                          for name in INPUT_VARIABLES[self.inputs_kind]], axis=1)
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,
-                                self.device, self.symmetrise, n_cells, self.inputs_kind)
+                                self.device, self.symmetrise, n_cells, self.inputs_kind,
+                                self.precision)
         normalised, sums = normalise_predicted(raw), density_sums(raw)
         if single:
             return Prediction(raw[0], normalised[0], float(sums[0]),
