@@ -115,3 +115,26 @@ def test_the_inference_copy_follows_the_weights(checkpoint, moulds):
     np.testing.assert_allclose(predictor(masks, **extra).raw, x.raw, rtol=1e-6,
                                atol=1e-7 * np.abs(x.raw).max())
     assert fresh.training
+
+
+def test_bfloat16_prediction_is_close_to_float32_and_precision_is_checked(checkpoint, moulds):
+    """precision="bfloat16" runs the inference copy in bfloat16: the same fields to a few 1e-3
+    of their largest value (a rounding of the arithmetic, not another model), the physics
+    head's relations kept exactly (sum P = N_c, SxSz = SySz = 0); an unknown precision is
+    refused by name."""
+    exact = Predictor(checkpoint, device="cpu")
+    fast = Predictor(checkpoint, device="cpu", precision="bfloat16")
+    masks = np.stack([input_channels(m, exact.native) for m in moulds])
+    extra = exact.mould_arguments(moulds)
+    a, b = exact(masks, **extra), fast(masks, **extra)
+    for x, y in ((a.raw, b.raw), (a.spread, b.spread)):
+        # each field against its largest value; the orientation tensor's components (in
+        # cells, as P) against the largest of them all, as a small one (SxSy) nearly cancels
+        scale = np.abs(x).max(axis=(0, 2, 3))
+        scale[2:] = scale[2:].max()
+        assert np.abs(x - y).max() > 0  # it is another arithmetic
+        assert np.all(np.abs(x - y) <= 3e-2 * scale[:, None, None])
+    np.testing.assert_allclose(b.raw[:, 0].sum(axis=(1, 2)), extra["n_cells"], rtol=1e-5)
+    assert np.all(b.raw[:, 6:] == 0)
+    with pytest.raises(ValueError, match="precision 'float16' is not one of"):
+        Predictor(checkpoint, device="cpu", precision="float16")
