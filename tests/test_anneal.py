@@ -164,6 +164,27 @@ def test_anneal_resumed_from_checkpoints_is_bit_identical(mould, tmp_path):
     assert np.array_equal(again[0], ref_pos)
 
 
+def test_checkpoint_keeps_bond_energies_as_bits_and_reads_the_older_plain_form(mould, tmp_path):
+    """The cached bond energies are saved as their XOR with the recomputed ones (the file
+    compresses); loading gives back the exact bits, as does a checkpoint written before, with
+    the energies plain."""
+    lat, ori = mould
+    run = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
+    run.advance(30001)
+    ck, old = tmp_path / "run.npz", tmp_path / "old.npz"
+    run.save(ck)
+    with np.load(ck) as data:
+        assert "slot_e" not in data.files and data["slot_xor"].dtype == np.uint64
+        fields = {name: data[name] for name in data.files if name != "slot_xor"}
+    np.savez(old, slot_e=run.slot_e, **fields)
+    for path in (ck, old):
+        back = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
+        back.load(path)
+        assert np.array_equal(back.slot_e.view(np.uint64), run.slot_e.view(np.uint64))
+        assert np.array_equal(back.pos, run.pos) and back.trial == run.trial
+    assert ck.stat().st_size < 0.5 * old.stat().st_size
+
+
 def test_checkpoint_of_another_run_or_corrupt_is_refused(mould, tmp_path):
     lat, ori = mould
     ck = tmp_path / "run.npz"
