@@ -42,10 +42,6 @@ def write_store(path, ds, box=BOX):
                       "max_force": 0.0, "solver": "synthetic", "solver_seconds": 0.0, "hardware": "test"}, "ok")
 
 
-# on one xdist worker (pyproject: --dist loadgroup): its module fixtures built once
-pytestmark = pytest.mark.xdist_group("cli_surrogate")
-
-
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """A store and a checkpoint trained on it by `condor train` (2 epochs, then resumed to 3)."""

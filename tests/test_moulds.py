@@ -23,11 +23,6 @@ SEED = 20240607
 CHI2_4DOF_P001 = 18.467
 
 
-# Every test of this module on one xdist worker (pyproject: --dist loadgroup), so that the
-# 2,000 moulds below are generated once, not once a worker.
-pytestmark = pytest.mark.xdist_group("moulds")
-
-
 @pytest.fixture(scope="module")
 def moulds() -> list[M.Mould]:
     return [M.generate_mould(SEED, i, box=BOX) for i in range(N_MOULDS)]

@@ -8,10 +8,6 @@ from condor.model.simulate import SOLVERS, simulate
 from condor.studies.stability import CASES, DEPTH, run_case, run_cases
 
 
-# on one xdist worker (pyproject: --dist loadgroup): its module fixtures built once
-pytestmark = pytest.mark.xdist_group("stability")
-
-
 @pytest.fixture(scope="module")
 def table():
     return run_cases()
