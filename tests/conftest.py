@@ -22,12 +22,50 @@ from filelock import FileLock
 REPO = Path(__file__).resolve().parents[1]
 TINY_CONFIG = REPO / "config" / "tiny.yaml"
 
+# One thread a process: pytest-xdist already runs one worker a core, and a second thread pool
+# in each (torch's, BLAS's) only makes them wait on each other, far worse on a busy machine.
+# Set before torch or numpy is imported; the subprocesses (snakemake, its jobs) inherit it.
+for _name in ("OMP_NUM_THREADS", "MKL_NUM_THREADS", "OPENBLAS_NUM_THREADS"):
+    os.environ.setdefault(_name, "1")
+
 
 def snakemake_command(workdir, *extra, cores=2):
     return [sys.executable, "-m", "snakemake", "--cores", str(cores),
             "--snakefile", str(REPO / "Snakefile"),
             "--workflow-profile", str(REPO / "profiles" / "default"),
             "--directory", str(workdir), *extra]
+
+
+def condor_cli(*args, cwd=None):
+    """`condor <args>` run in this process (`condor.cli.main`), as a `CompletedProcess`: the
+    exit status, stdout and stderr a user would see. An exception that escapes `main` is exit
+    status 1 with its traceback on stderr, as the console script would print it. For tests of
+    what a command does: it spares each a fresh interpreter and its imports (seconds). The
+    entry point itself runs as a subprocess in tests/test_cli.py."""
+    import contextlib
+    import io
+    import traceback
+
+    from condor import cli
+
+    out, err, code, here = io.StringIO(), io.StringIO(), 0, os.getcwd()
+    try:
+        if cwd is not None:
+            os.chdir(cwd)
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            try:
+                cli.main([str(a) for a in args])
+            except SystemExit as done:
+                if isinstance(done.code, str):
+                    print(done.code, file=sys.stderr)
+                code = done.code if isinstance(done.code, int) else int(done.code is not None)
+            except Exception:  # noqa: BLE001 - what the console script would print
+                traceback.print_exc()
+                code = 1
+    finally:
+        os.chdir(here)
+    return subprocess.CompletedProcess(["condor", *map(str, args)], code, out.getvalue(),
+                                       err.getvalue())
 
 
 def session_folder(tmp_path_factory):
@@ -68,8 +106,23 @@ def pytest_collection_modifyitems(items):
     items.sort(key=_needs_tiny_run)
 
 
+def _warm_numba(folder):
+    from condor.stages.dataset import warm_kernels
+
+    warm_kernels()
+    folder.mkdir()
+
+
 @pytest.fixture(scope="session", autouse=True)
-def _start_tiny_run(request, tmp_path_factory):
+def _numba_kernels(tmp_path_factory):
+    """The workflow's numba kernels compiled into numba's on-disk cache once, by one worker,
+    before any test or run: else every worker and the tiny run's jobs compile them at once
+    (the same CPU-minute each, and a cache written by many processes at once can break)."""
+    build_once(tmp_path_factory, "numba_kernels", _warm_numba)
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _start_tiny_run(request, tmp_path_factory, _numba_kernels):
     """Start building the tiny run in the background when this session will need it."""
     if any(map(_needs_tiny_run, request.session.items)):
         def build():

@@ -11,12 +11,15 @@ machine and are not checked).
 from __future__ import annotations
 
 import importlib.util
+import json
 import os
 import subprocess
 import sys
 from pathlib import Path
 
 import pytest
+
+from conftest import build_once
 
 REPO = Path(__file__).resolve().parents[1]
 BENCHMARKS = sorted((REPO / "benchmarks").glob("*.py"))
@@ -46,8 +49,55 @@ def test_benchmarks_are_the_performance_tools_and_studies_live_in_experiments():
         assert (folder / "README.md").is_file(), f"{folder.name} has no README.md"
 
 
+# Every script's --help in one fresh interpreter (a script's own folder on sys.path, its sibling
+# modules forgotten after it, the library's imports shared): one start-up and one import of
+# torch and the library for all of them, not one each (about 26 x 5 CPU seconds).
+HELP_RUNNER = r"""
+import contextlib, io, json, os, runpy, sys, traceback
+del sys.path[0]  # this runner's own folder: a script sees only its own
+results = {}
+for script in json.loads(sys.argv[1]):
+    folder, before = os.path.dirname(script), set(sys.modules)
+    out, err, code = io.StringIO(), io.StringIO(), 0
+    sys.argv = [script, "--help"]
+    sys.path.insert(0, folder)  # as `python <script>` does
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            runpy.run_path(script, run_name="__main__")
+    except SystemExit as done:
+        code = done.code if isinstance(done.code, int) else int(done.code is not None)
+    except BaseException:
+        err.write(traceback.format_exc())
+        code = 1
+    finally:
+        sys.path.remove(folder)
+        for name in set(sys.modules) - before:
+            if (getattr(sys.modules[name], "__file__", None) or "").startswith(folder + os.sep):
+                del sys.modules[name]
+    results[script] = {"returncode": code, "stdout": out.getvalue(), "stderr": err.getvalue()}
+print(json.dumps(results))
+"""
+
+
+def _run_helps(folder: Path):
+    folder.mkdir()
+    scripts = [str(s) for s in EXPERIMENTS + BENCHMARKS if "argparse" in s.read_text()]
+    (folder / "runner.py").write_text(HELP_RUNNER)
+    done = subprocess.run([sys.executable, str(folder / "runner.py"), json.dumps(scripts)],
+                          cwd=REPO, capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-3000:]
+    (folder / "helps.json").write_text(done.stdout.splitlines()[-1])
+
+
+@pytest.fixture(scope="session")
+def helps(tmp_path_factory):
+    """{script: returncode, stdout, stderr} of `python <script> --help`, run once a session."""
+    folder = build_once(tmp_path_factory, "script_helps", _run_helps)
+    return json.loads((folder / "helps.json").read_text())
+
+
 @pytest.mark.parametrize("script", EXPERIMENTS + BENCHMARKS, ids=_id)
-def test_script_imports_without_path_tricks_and_answers_help(script: Path):
+def test_script_imports_without_path_tricks_and_answers_help(script: Path, helps):
     text = script.read_text()
     assert "sys.path.insert" not in text and "sys.path.append" not in text
     name = f"_script_{script.parent.name}_{script.stem}"
@@ -64,10 +114,9 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path):
         sys.path.remove(str(script.parent))
     if "argparse" not in text:
         pytest.skip(f"{script.name} has no argparse: --help would run its workload")
-    done = subprocess.run([sys.executable, str(script), "--help"], cwd=REPO, capture_output=True,
-                          text=True)
-    assert done.returncode == 0, f"{script.name} --help failed:\n{done.stderr[-2000:]}"
-    assert "usage:" in done.stdout
+    done = helps[str(script)]
+    assert done["returncode"] == 0, f"{script.name} --help failed:\n{done['stderr'][-2000:]}"
+    assert "usage:" in done["stdout"]
 
 
 @pytest.mark.slow

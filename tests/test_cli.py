@@ -1,4 +1,6 @@
-"""The `condor` command line for the dataset stages, run as a user would (subprocess)."""
+"""The `condor` command line for the dataset stages: its entry point as a user runs it (a
+subprocess), and what each command does, run in this process (`condor_cli`: `cli.main`, with
+the exit status, stdout and stderr a user would see)."""
 
 import json
 import shutil
@@ -10,6 +12,7 @@ import shapely
 import pytest
 
 from condor import cli
+from conftest import condor_cli
 from condor.data.fields import FIELD_NAMES
 from condor.data.moulds import load_json
 from condor.model.simulate import SimResult
@@ -17,12 +20,13 @@ from condor.data.store import StoreSpec, assign_splits, create_store, write_inpu
 
 
 def condor(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "condor.cli", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True)
+    return condor_cli(*args, cwd=cwd)
 
 
 def test_mould_writes_geometry_and_picture(tmp_path):
-    proc = condor("mould", "--seed", 7, "--out", "m.json", "--png", "m.png", cwd=tmp_path)
+    """Through the entry point, as a user runs it (`python -m condor.cli`, a subprocess)."""
+    proc = subprocess.run([sys.executable, "-m", "condor.cli", "mould", "--seed", "7", "--out",
+                           "m.json", "--png", "m.png"], cwd=tmp_path, capture_output=True, text=True)
     assert proc.returncode == 0, proc.stderr
     mould = load_json(tmp_path / "m.json")  # validates on load
     assert mould.seed == 7 and mould.mould_id == 0

@@ -8,7 +8,6 @@ import os
 import shutil
 import signal
 import subprocess
-import sys
 import time
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import pytest
 import xarray as xr
 
 from condor.data.store import check_store
+from conftest import condor_cli
 from test_cli_surrogate import _without_write_permission
 from test_workflow import REPO, TINY, run, snakemake_args
 
@@ -99,8 +99,7 @@ def test_a_deleted_fields_chunk_is_found_and_repaired(folder):
     before = fields_of(folder)
     chunk = store(folder) / "fields" / "c" / "3"
     shutil.rmtree(chunk)
-    check = subprocess.run([sys.executable, "-m", "condor.cli", "check-store", str(store(folder))],
-                           capture_output=True, text=True)
+    check = condor_cli("check-store", store(folder))
     assert check.returncode == 1 and "corrupt: 3" in check.stdout
     proc = run(folder, *tiny_args("--until", "dataset"))
     assert proc.stderr.count("rule fields:") == 1  # only the batch that lost it
@@ -156,8 +155,7 @@ def test_a_misspelt_key_is_one_line_without_the_schema(tmp_path):
 
 
 def condor(*args, cwd):
-    return subprocess.run([sys.executable, "-m", "condor.cli", *map(str, args)], cwd=cwd,
-                          capture_output=True, text=True)
+    return condor_cli(*args, cwd=cwd)
 
 
 def test_predict_never_replaces_a_dataset_store(folder, tmp_path):
@@ -198,8 +196,7 @@ def store_files(workdir):
 
 
 def check_store_cli(workdir, *extra):
-    return subprocess.run([sys.executable, "-m", "condor.cli", "check-store", str(store(workdir)),
-                           *extra], capture_output=True, text=True)
+    return condor_cli("check-store", store(workdir), *extra)
 
 
 def jobs(proc):

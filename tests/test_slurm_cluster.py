@@ -23,6 +23,8 @@ from pathlib import Path
 import pytest
 import yaml
 
+from conftest import build_once
+
 REPO = Path(__file__).resolve().parents[1]
 CLUSTER = REPO / "profiles" / "slurm" / "localhost-cluster.sh"
 TINY = ("--configfile", str(REPO / "config" / "tiny.yaml"))
@@ -36,7 +38,8 @@ SLURM = ("--executor", "slurm", "--workflow-profile", str(REPO / "profiles" / "s
 SITE = ("--default-resources", "slurm_account=condor-test", "slurm_partition=compute")
 LIMIT_S = 3600  # a deadline only: a run that hangs fails instead of blocking CI forever
 
-pytestmark = pytest.mark.slow
+# not in the default run (pyproject's addopts): `python -m pytest -q -m cluster`, as .ci/run does
+pytestmark = [pytest.mark.slow, pytest.mark.cluster]
 
 
 def sh(*cmd, check=True, timeout=60):
@@ -161,14 +164,18 @@ def assert_stores_identical(store, reference):
     return len(mine) - len(timing), len(timing)
 
 
-@pytest.fixture(scope="module")
-def local_store(tmp_path_factory):
-    """The tiny dataset built locally (profiles/default), the reference of every SLURM run."""
-    workdir = tmp_path_factory.mktemp("local")
+def _build_local(workdir):
+    workdir.mkdir()
     proc = subprocess.run(snakemake(workdir, *TINY, "--cores", "2", "dataset"),
                           capture_output=True, text=True, timeout=LIMIT_S)
     assert proc.returncode == 0, proc.stderr[-4000:]
-    return workdir / "results" / "dataset.zarr"
+
+
+@pytest.fixture(scope="module")
+def local_store(tmp_path_factory):
+    """The tiny dataset built locally (profiles/default), the reference of every SLURM run:
+    built once for the session, whichever xdist worker asks first (the others wait)."""
+    return build_once(tmp_path_factory, "slurm_local", _build_local) / "results" / "dataset.zarr"
 
 
 def show(capsys, title, text):
