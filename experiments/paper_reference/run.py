@@ -25,10 +25,11 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
-from condor.studies.paper_reference import run_path, run_reference  # noqa: E402
+from condor.studies.paper_reference import (  # noqa: E402
+    pack_mould, run_path, run_provenance, run_reference,
+)
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from tables import CACHE, pack  # noqa: E402
+CACHE = Path(__file__).resolve().parent / "cache"
 
 
 def claim(path: Path) -> bool:
@@ -81,7 +82,9 @@ def main(argv=None) -> int:
                 r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
                 log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
                     f"{r.seconds:.0f} CPU s")
-                log(f"packed into {pack(a.cache, scene, a.seed, mould, [budget], a.runs)}")
+                out = pack_mould(a.cache, scene, a.seed, mould, [budget], a.runs,
+                                 run_provenance("experiments/paper_reference/run.py"))
+                log(f"packed into {out}")
             finally:
                 path.with_name(path.name + ".lock").unlink(missing_ok=True)
     return 0

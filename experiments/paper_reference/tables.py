@@ -16,29 +16,19 @@ kernel); run.py does this itself as each run finishes.
 from __future__ import annotations
 
 import argparse
-import subprocess
 import sys
 from pathlib import Path
 
 import pandas as pd
 
-from condor.model.anneal import KERNEL
 from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
-from condor.studies.paper_reference import budget_tag, pack_mould, reference_rung
+from condor.studies.paper_reference import (budget_tag, pack_mould, reference_rung,
+                                             run_provenance)
 
 HERE = Path(__file__).resolve().parent
-CACHE = HERE / "cache"  # run.py's default
-
-
-def pack(cache, scene, seed, mould, rungs, runs):
-    """Add a mould's finished cached runs to the product, with this commit and kernel."""
-    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
-                            cwd=HERE).stdout.strip()
-    return pack_mould(cache, scene, seed, mould, rungs, runs,
-                      {"kernel": KERNEL, "commit": commit,
-                       "made_by": "experiments/paper_reference/run.py"})
+CACHE = HERE / "cache"  # run.py's default too
 
 
 def main(argv=None) -> int:
@@ -56,7 +46,8 @@ def main(argv=None) -> int:
     rungs = sorted(a.rungs)
     if a.pack:
         for m in a.moulds:
-            out = pack(a.cache, scene, a.seed, m, rungs, a.runs)
+            out = pack_mould(a.cache, scene, a.seed, m, rungs, a.runs,
+                             run_provenance("experiments/paper_reference/run.py"))
             if out is not None:
                 print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
     data = {b: [reference_rung(scene, a.seed, m, b) for m in a.moulds] for b in rungs}

@@ -95,6 +95,17 @@ def reference_file(scene_name: str, dataset_seed: int, mould_id: int, folder=Non
     return Path(folder or REFERENCE_DIR) / f"{scene_name}_s{dataset_seed}_m{mould_id}.npz"
 
 
+def run_provenance(made_by: str) -> dict:
+    """What a packed run records of the code that made it: the anneal kernel, the git commit
+    of this checkout ('' outside one) and the script."""
+    import subprocess
+
+    from condor.model.anneal import KERNEL
+    commit = subprocess.run(["git", "rev-parse", "HEAD"], capture_output=True, text=True,
+                            cwd=Path(__file__).resolve().parent).stdout.strip()
+    return {"kernel": KERNEL, "commit": commit, "made_by": made_by}
+
+
 def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, runs: int,
                provenance: dict, folder=None) -> Path | None:
     """Add the finished runs 0..runs-1 of `mould_id` at `budgets` in the run cache (each with
