@@ -65,6 +65,7 @@ def main(argv=None) -> int:
     os.nice(10)
     scene = get_scene(a.scene)
     warm_up()
+    provenance = run_provenance("experiments/paper_reference/run.py")  # the code it runs
 
     def log(line):
         print(f"{time.strftime('%H:%M:%S')} [{os.getpid()}] {line}", flush=True)
@@ -82,8 +83,7 @@ def main(argv=None) -> int:
                 r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
                 log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
                     f"{r.seconds:.0f} CPU s")
-                out = pack_mould(a.cache, scene, a.seed, mould, [budget], a.runs,
-                                 run_provenance("experiments/paper_reference/run.py"))
+                out = pack_mould(a.cache, scene, a.seed, mould, [budget], a.runs, provenance)
                 log(f"packed into {out}")
             finally:
                 path.with_name(path.name + ".lock").unlink(missing_ok=True)
