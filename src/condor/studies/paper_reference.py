@@ -138,7 +138,9 @@ def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, r
                                   "energy_per_cell": r.energy_per_cell, "cpu_seconds": r.seconds,
                                   "evaluations": r.info.get("evaluations"),
                                   "max_force": r.info.get("max_force"), **provenance}
-                if r.status != "ok":
+                if r.status != "ok":  # a rerun that failed: no stale state of an earlier one
+                    for part in ("pos", "ori", "tension"):
+                        arrays.pop(f"{key}_{part}", None)
                     continue
                 arrays[f"{key}_pos"] = np.round(r.positions / POS_QUANTUM).astype(np.int16)
                 arrays[f"{key}_ori"] = np.round(r.orientations * _ORI_SCALE).astype(np.int16)
