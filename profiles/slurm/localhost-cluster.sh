@@ -96,21 +96,27 @@ start() {
     for cmd in munged slurmctld slurmd sbatch squeue; do
         command -v "$cmd" >/dev/null || die "$cmd not found: run '$0 install' first"
     done
+    # one start at a time: two test workers (pytest-xdist) may both find the cluster down. The
+    # daemons are started with the lock's descriptor closed (9>&-), or they would hold it forever.
+    exec 9>/run/condor-localhost-cluster.lock
+    flock 9
     write_config
     # munge: the key comes with the package; its socket directory may not exist in a container
     install -d -o munge -g munge -m 0755 /run/munge
     [[ -s /etc/munge/munge.key ]] || die "/etc/munge/munge.key missing: reinstall munge or create it with mungekey"
     if ! munge -n 2>/dev/null | unmunge >/dev/null 2>&1; then
-        runuser -u munge -- /usr/sbin/munged || die "munged did not start"
+        # a munged started meanwhile by someone else holds the socket: this one then fails, and
+        # the check below is what decides
+        runuser -u munge -- /usr/sbin/munged 9>&- || echo "localhost-cluster: munged did not start; checking for a running one" >&2
         sleep 1
-        munge -n | unmunge >/dev/null || die "munge does not authenticate (see /var/log/munge/munged.log)"
+        munge -n | unmunge >/dev/null || die "munged is not running or does not authenticate (see /var/log/munge/munged.log)"
     fi
     if running "$DIR/slurmctld.pid"; then
-        scontrol reconfigure || die "slurmctld runs but does not answer: see $DIR/log/slurmctld.log"
+        scontrol reconfigure 9>&- || die "slurmctld runs but does not answer: see $DIR/log/slurmctld.log"
     else
-        slurmctld || die "slurmctld did not start: see $DIR/log/slurmctld.log"
+        slurmctld 9>&- || die "slurmctld did not start: see $DIR/log/slurmctld.log"
     fi
-    running "$DIR/slurmd.pid" || slurmd || die "slurmd did not start: see $DIR/log/slurmd.log"
+    running "$DIR/slurmd.pid" || slurmd 9>&- || die "slurmd did not start: see $DIR/log/slurmd.log"
     for _ in $(seq 60); do
         state=$(sinfo -h -n "$HOST" -o %T 2>/dev/null || true)
         case $state in
