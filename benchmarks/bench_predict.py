@@ -2,7 +2,8 @@
 
     python benchmarks/bench_predict.py results/models/unet.pt [--moulds 32] [--repeats 5]
     python benchmarks/bench_predict.py --random unet      # a preset's network, random weights
-    python benchmarks/bench_predict.py ... --precision bfloat16   # the network in bfloat16
+    python benchmarks/bench_predict.py ... --precision float32    # the network in float32
+    (default: auto, the Predictor's: bfloat16 where the CPU has it natively)
 
 On generated moulds of the checkpoint's scene (with --random: the preset's network at the
 default scene, random weights: the time needs the architecture, not trained weights), per
@@ -81,8 +82,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=5)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--seed", type=int, default=123)
-    parser.add_argument("--precision", default="float32", choices=("float32", "bfloat16"),
-                        help="the network's arithmetic (Predictor's precision)")
+    parser.add_argument("--precision", default="auto", choices=("auto", "float32", "bfloat16"),
+                        help="the network's arithmetic (Predictor's precision; default: auto, "
+                             "its default)")
     parser.add_argument("--symmetrise", action="store_true",
                         help="symmetrise as the default checkpoint does, whatever this one says")
     args = parser.parse_args()

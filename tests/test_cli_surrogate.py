@@ -61,7 +61,15 @@ def run_main(argv):
 
 
 def test_parser_choices_agree_with_library():
+    import importlib
+
+    predict_module = importlib.import_module("condor.surrogate.predict")  # the module, not
+    # condor.surrogate's function of that name
+
     assert cli.PREDICTION_MODES == PREDICTION_MODES
+    assert (cli.AUTO_PRECISION, cli.PRECISIONS, cli.DEFAULT_PRECISION) == (
+        predict_module.AUTO_PRECISION, predict_module.PRECISIONS,
+        predict_module.DEFAULT_PRECISION)
 
 
 def test_train_writes_checkpoint(trained):

@@ -123,7 +123,7 @@ def test_a_lattice_model_reads_the_lattice_variable(tmp_path, kind):
                       batch_size=4, lr=2e-3)
     path = tmp_path / "lat.pt"
     train(ds, cfg, path, log=lambda _: None)
-    predictor = Predictor(path)
+    predictor = Predictor(path, precision="float32")  # compared with run_model's float32
     assert predictor.needs_lattice
     assert predictor.model.cfg.in_channels == (2 if kind == "lattice" else 4)
     test = usable_samples(ds, "test")
@@ -376,7 +376,7 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channel
                       batch_size=4, lr=2e-3, augment=True, symmetrise=True)
     path = tmp_path / "mech.pt"
     train(ds, cfg, path, log=lambda _: None)
-    predictor = Predictor(path)
+    predictor = Predictor(path, precision="float32")  # compared with run_model's float32
     assert predictor.needs_lattice and predictor.model.cfg.in_channels == channels
     test = usable_samples(ds, "test")
     masks, lattice = ds["inputs"].values[test], ds["lattice"].values[test]

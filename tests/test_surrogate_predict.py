@@ -55,7 +55,7 @@ def moulds():
 
 
 def test_batched_prediction_equals_one_mould_at_a_time(checkpoint, moulds):
-    predictor = Predictor(checkpoint, device="cpu")
+    predictor = Predictor(checkpoint, device="cpu", precision="float32")
     assert predictor.symmetrise and predictor.mode == "eval"
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
     extra = predictor.mould_arguments(moulds)
@@ -122,7 +122,7 @@ def test_bfloat16_prediction_is_close_to_float32_and_precision_is_checked(checkp
     of their largest value (a rounding of the arithmetic, not another model), the physics
     head's relations kept exactly (sum P = N_c, SxSz = SySz = 0); an unknown precision is
     refused by name."""
-    exact = Predictor(checkpoint, device="cpu")
+    exact = Predictor(checkpoint, device="cpu", precision="float32")
     fast = Predictor(checkpoint, device="cpu", precision="bfloat16")
     masks = np.stack([input_channels(m, exact.native) for m in moulds])
     extra = exact.mould_arguments(moulds)
@@ -138,3 +138,17 @@ def test_bfloat16_prediction_is_close_to_float32_and_precision_is_checked(checkp
     assert np.all(b.raw[:, 6:] == 0)
     with pytest.raises(ValueError, match="precision 'float16' is not one of"):
         Predictor(checkpoint, device="cpu", precision="float16")
+
+
+@pytest.mark.parametrize("native", [True, False])
+def test_auto_precision_takes_bfloat16_only_where_it_is_native(checkpoint, monkeypatch, native):
+    """The default precision, "auto", is resolved when the Predictor is made: bfloat16 where
+    this CPU has it natively, float32 elsewhere (where bfloat16 would be emulated, slower)."""
+    import importlib
+
+    predict_module = importlib.import_module("condor.surrogate.predict")  # the module, not
+    # condor.surrogate's function of that name
+
+    monkeypatch.setattr(predict_module, "bfloat16_is_native", lambda: native)
+    assert Predictor(checkpoint, device="cpu").precision == ("bfloat16" if native else "float32")
+    assert Predictor(checkpoint, device="cpu", precision="float32").precision == "float32"

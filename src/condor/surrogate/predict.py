@@ -41,6 +41,10 @@ _INFERENCE_COPIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
 # AVX512-BF16 or AMX, run it about twice as fast; measured on the default run's test moulds:
 # docs/surrogate.md, "Prediction time").
 PRECISIONS = ("float32", "bfloat16")
+# Predictor's default: bfloat16 where the CPU has it natively (bfloat16_is_native), else
+# float32. "auto" is resolved once, when the Predictor is made (Predictor.precision).
+AUTO_PRECISION = "auto"
+DEFAULT_PRECISION = AUTO_PRECISION
 
 
 def bfloat16_is_native() -> bool:
@@ -50,6 +54,16 @@ def bfloat16_is_native() -> bool:
                     and torch.ops.mkldnn._is_mkldnn_bf16_supported())
     except (AttributeError, RuntimeError):
         return False
+
+
+def resolve_precision(precision: str) -> str:
+    """`precision` as the network will run it: one of PRECISIONS ("auto": bfloat16 where
+    bfloat16_is_native, else float32); anything else is refused by name."""
+    if precision == AUTO_PRECISION:
+        return "bfloat16" if bfloat16_is_native() else "float32"
+    if precision not in PRECISIONS:
+        raise ValueError(f"precision {precision!r} is not one of {(AUTO_PRECISION,) + PRECISIONS}")
+    return precision
 
 
 def _inference_model(model: UNetGenerator, precision: str = "float32") -> UNetGenerator:
@@ -254,14 +268,13 @@ class Predictor:
     """A loaded checkpoint, for repeated predictions."""
 
     def __init__(self, checkpoint_path, device=None, mode: str | None = None,
-                 symmetrise: bool | None = None, precision: str = "float32"):
-        """`precision` (PRECISIONS): the network's arithmetic in "eval" mode; "bfloat16" is
-        about twice as fast on a CPU with bfloat16 arithmetic (bfloat16_is_native) and changes
-        the fields by a few 1e-3 of their largest value (docs/surrogate.md, "Prediction
-        time")."""
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision {precision!r} is not one of {PRECISIONS}")
-        self.precision = precision
+                 symmetrise: bool | None = None, precision: str = DEFAULT_PRECISION):
+        """`precision` ("auto" or PRECISIONS): the network's arithmetic in "eval" mode;
+        "bfloat16" is about twice as fast on a CPU with bfloat16 arithmetic
+        (bfloat16_is_native) and changes the fields by a few 1e-3 of their largest value
+        (docs/surrogate.md, "Prediction time"); "auto" (the default) takes it where it is
+        native, float32 elsewhere. `self.precision` is the one resolved."""
+        self.precision = resolve_precision(precision)
         self.path = str(checkpoint_path)
         self.device = default_device(device)
         state = load_checkpoint(checkpoint_path)
@@ -395,13 +408,14 @@ class Predictor:
 
 
 def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
-            symmetrise: bool | None = None, n_cells=None) -> Prediction:
+            symmetrise: bool | None = None, n_cells=None,
+            precision: str = DEFAULT_PRECISION) -> Prediction:
     """Predict fields for mould inputs (2, H, W) or (S, 2, H, W) (channels mould, tether; 0/1;
     native resolution of the training data). `mode` (a models.PREDICTION_MODES entry)
     and `symmetrise` (test-time symmetrisation) default to the checkpoint's training config;
     `n_cells`: see Predictor.__call__."""
-    return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise)(
-        inputs, n_cells=n_cells)
+    return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise,
+                     precision=precision)(inputs, n_cells=n_cells)
 
 
 def _binary(mask: np.ndarray, what: str) -> np.ndarray:
