@@ -35,6 +35,15 @@ def test_fidelity_recovers_a_known_distance_and_noise():
     # the same ensemble against itself (disjoint replicas): no distance
     same = fidelity_row("m", "tiny", "ref", _draw(rng, mu, 0.2, 20), b)
     assert same["distance_lo"] == 0.0 and same["converged"]
+    # the verdict is the distance's, whatever the energies say: energies 10% apart (their
+    # interval far above the bar's number) leave it converged, and equal energies leave the
+    # shifted ensemble unconverged
+    energies = {"energy": np.full((m, 20), 1.1), "ref_energy": np.ones((m, 30))}
+    same = fidelity_row("m", "tiny", "ref", _draw(rng, mu, 0.2, 20), b, **energies)
+    assert same["energy_difference_pct_hi"] == pytest.approx(10.0) and same["converged"]
+    far = fidelity_row("m", "tiny", "ref", _draw(rng, mu + 4 * shift, 0.2, 20), b,
+                       energy=np.ones((m, 20)), ref_energy=np.ones((m, 30)))
+    assert far["energy_difference_pct_hi"] == 0.0 and not far["converged"]
 
 
 def test_mean_orientation_is_the_cell_average():

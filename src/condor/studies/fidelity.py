@@ -59,11 +59,11 @@ def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
         row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
     if energy is not None and ref_energy is not None:
         ratio = 100 * (np.nanmean(energy, axis=1) / np.nanmean(ref_energy, axis=1) - 1)
-        mean, lo, hi = est.bootstrap_interval(ratio, statistic=np.mean)
-        row.update(energy_difference_pct=mean, energy_difference_pct_lo=lo,
-                   energy_difference_pct_hi=hi,
+        e_mean, e_lo, e_hi = est.bootstrap_interval(ratio, statistic=np.mean)
+        row.update(energy_difference_pct=e_mean, energy_difference_pct_lo=e_lo,
+                   energy_difference_pct_hi=e_hi,
                    energy_difference_pct_max=float(ratio[np.argmax(np.abs(ratio))]))
-    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
+    row["converged"] = bool(row["distance_hi"] <= SAME_STATES * row["replica_noise"])
     return row
 
 
@@ -159,6 +159,6 @@ def prediction_row(method: str, scene: str, reference: str, predicted, ref_field
     for name, values in zip(("sx2", "sy2", "sz2"), diff.T):
         row[f"{name}_difference"] = float(np.mean(values))
         row[f"{name}_difference_max"] = float(values[np.argmax(np.abs(values))])
-    row["converged"] = bool(hi <= SAME_STATES * row["replica_noise"])
+    row["converged"] = bool(row["distance_hi"] <= SAME_STATES * row["replica_noise"])
     row["moulds"] = " ".join(map(str, moulds))
     return row
