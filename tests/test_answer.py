@@ -237,3 +237,12 @@ def test_the_calibration_warns_only_for_a_checkpoint_it_was_not_fitted_for(tmp_p
     with pytest.raises(ValueError, match="repeats statistics \\['alignment'\\]"):
         spread_factors(pd.concat([_calibration_table(sha), _calibration_table(sha).iloc[:1]]))
 
+
+def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
+    finding = findings.load_findings()["spread_calibration"]
+    table = finding.frame()
+    factors = spread_factors(table)
+    assert set(factors) == set(SPREAD_STATISTICS)
+    assert (table["factor_lo"] <= table["factor"]).all() and \
+        (table["factor"] <= table["factor_hi"]).all()
+    assert table["checkpoint_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()

@@ -25,9 +25,9 @@ fields' kernel), times the statistic's calibration factor (`factors`; `condor pr
 them from condor.findings' "spread_calibration" table, experiments/spread_calibration). The
 draws alone are the wrong size for a whole-mould statistic, each its own way: the map is a
 predictive spread (one simulation's scatter and the surrogate's own error, calibrated as
-per-pixel intervals), 2 times the replicas' scatter in P and 5 times in T, so the mean tension's
-and tissue area's draws scatter 2.5-4 times too much; and it gives no correlations beyond the
-kernel, while orientation domains are larger, so the alignment's scatter too little
+per-pixel intervals), well above the replicas' scatter in P and T, so the mean tension's and
+tissue area's draws scatter too much; and it gives no correlations beyond the kernel, while
+orientation domains are larger, so the alignment's scatter too little
 (experiments/spread_calibration/README.md measures both).
 """
 
