@@ -110,3 +110,139 @@ def test_the_shipped_table_answers_for_each_count_of_a_two_post_mould():
     assert f"Inside it, on {int(inside['n_moulds'])} {inside['description']}" in verdict
     for count in (AREA, TETHERS):
         assert f"{count}: not measured" not in verdict
+
+
+# --- the statistics' spreads and their calibration ---------------------------------------------
+
+from condor.surrogate.answer import (SPREAD_STATISTICS, check_spread_factors,  # noqa: E402
+                                     mould_summary, spread_calibration, spread_factors,
+                                     statistics)
+from condor.surrogate.calibration import statistic_spread_ratio  # noqa: E402
+
+N_PX, SIGMA_PX, PIXEL = 24, 1.5, 0.5
+
+
+def _disc(tension: float) -> np.ndarray:
+    """Normalised fields (8, N_PX, N_PX) of a disc of uniform density whose cells all carry
+    `tension` and lie along x: its mean tension is exactly `tension`. Its edge is blurred,
+    so that the density crosses the tissue area's threshold smoothly."""
+    from condor.surrogate.baselines import gaussian_blur
+
+    y, x = np.mgrid[:N_PX, :N_PX] - (N_PX - 1) / 2
+    density = gaussian_blur((np.hypot(x, y) < 8).astype(float), SIGMA_PX)
+    density *= density.size / density.sum()
+    fields = np.zeros((8, N_PX, N_PX))
+    fields[0], fields[1] = density, tension * density
+    fields[2], fields[3], fields[4] = 0.6 * density, 0.3 * density, 0.1 * density
+    return fields
+
+
+def test_the_ratio_of_scatter_to_spread_recovers_a_known_factor_from_three_replicas():
+    rng = np.random.default_rng(5)
+    k = 2.5
+    sigma = rng.uniform(0.5, 3.0, 400)  # each mould's true scatter; its spread k times too small
+    s = rng.normal(0.0, sigma[:, None], (400, 3)).std(axis=1, ddof=1)
+    ratio, lo, hi = statistic_spread_ratio(s, sigma / k)
+    assert lo < k < hi and ratio == pytest.approx(k, rel=0.06)
+    # the median of s / spread, biased low with 3 replicas (by sqrt(ln 2) for Gaussians), is not
+    assert np.median(s * k / sigma) < 0.9 * k
+
+
+def test_a_factor_fitted_on_replicas_makes_the_drawn_spread_one_simulations_scatter():
+    """Replicas whose mean tension scatters by a known sigma; a spread map (on T alone) whose
+    draws scatter the mean tension by another amount, proportional to sigma over moulds. The
+    factor fitted on 150 moulds x 4 replicas makes a new mould's spread its sigma."""
+    rng = np.random.default_rng(11)
+    unit = dict.fromkeys(SPREAD_STATISTICS, 1.0)
+    s, drawn = [], []
+    for sigma in rng.uniform(0.002, 0.02, 150):
+        replicas = [_disc(t) for t in 0.05 + rng.normal(0.0, sigma, 4)]
+        s.append(np.std([statistics(f, 400, PIXEL)["mean_tension"] for f in replicas], ddof=1))
+        spread = np.zeros((8, N_PX, N_PX))
+        spread[1] = 10 * sigma * replicas[0][0]  # the wrong size: not sigma's
+        table = mould_summary(np.mean(replicas, axis=0), 400, PIXEL, spread, sigma_px=SIGMA_PX,
+                              factors=unit).set_index("statistic")
+        drawn.append(table.loc["mean_tension", "spread"])
+    factor = statistic_spread_ratio(s, drawn)[0]
+    assert factor < 0.5  # the draws alone scatter more than twice sigma
+    sigma = 0.01
+    spread = np.zeros((8, N_PX, N_PX))
+    spread[1] = 10 * sigma * _disc(0.05)[0]
+    calibrated = mould_summary(_disc(0.05), 400, PIXEL, spread, sigma_px=SIGMA_PX,
+                               factors={**unit, "mean_tension": factor}).set_index("statistic")
+    assert calibrated.loc["mean_tension", "spread"] == pytest.approx(sigma, rel=0.12)
+
+
+def test_factors_scale_each_statistics_drawn_spread_and_the_area_in_mm2_by_the_areas():
+    rng = np.random.default_rng(2)
+    fields = _disc(0.05)
+    fields[5] = 0.1 * fields[0]  # a tilted direction
+    spread = 0.05 * np.abs(fields) + 0.01 * rng.random(fields.shape)
+    factors = dict(zip(SPREAD_STATISTICS, (0.5, 2.0, 3.0, 0.25, 0.4)))
+    plain = mould_summary(fields, 400, PIXEL, spread, sigma_px=SIGMA_PX, l0_um=20,
+                          factors=None).set_index("statistic")["spread"]
+    scaled = mould_summary(fields, 400, PIXEL, spread, sigma_px=SIGMA_PX, l0_um=20,
+                           factors=factors).set_index("statistic")["spread"]
+    for name, k in factors.items():
+        assert plain[name] > 0 and scaled[name] == pytest.approx(k * plain[name])
+    assert scaled["tissue_area_mm2"] == pytest.approx(0.4 * plain["tissue_area_mm2"])
+    assert np.isnan(scaled["reproducibility"])
+
+
+@pytest.mark.parametrize("factors, words", [
+    ({"alignment": 1.0}, "missing"),
+    ({**dict.fromkeys(SPREAD_STATISTICS, 1.0), "area": 2.0}, "unknown \\['area'\\]"),
+    ({**dict.fromkeys(SPREAD_STATISTICS, 1.0), "mean_tension": 0.0}, "mean_tension.*> 0, got 0"),
+    ({**dict.fromkeys(SPREAD_STATISTICS, 1.0), "direction": float("nan")}, "direction"),
+    ({**dict.fromkeys(SPREAD_STATISTICS, 1.0), "alignment": "x"}, "alignment must be a number"),
+])
+def test_bad_spread_factors_are_refused_by_name(factors, words):
+    with pytest.raises(ValueError, match=words):
+        check_spread_factors(factors)
+    with pytest.raises(ValueError, match=words):
+        mould_summary(_disc(0.05), 400, PIXEL, factors=factors)
+
+
+@pytest.mark.parametrize("s, spread, words", [
+    ([0.1, 0.2], [0.1], "same"), ([], [], "at least one"), ([0.1, -1.0], [1, 1], "finite and >= 0"),
+    ([0.1, 0.2], [1.0, 0.0], "finite and > 0"), ([0.1, 0.2], [1.0, np.nan], "finite and > 0")])
+def test_a_spread_ratio_of_bad_values_is_refused(s, spread, words):
+    with pytest.raises(ValueError, match=words):
+        statistic_spread_ratio(s, spread)
+
+
+def _calibration_table(sha: str, factors=(1.5, 1.2, 2.0, 0.25, 0.4)) -> pd.DataFrame:
+    return pd.DataFrame({"statistic": SPREAD_STATISTICS, "factor": factors,
+                         "factor_lo": 0.5, "factor_hi": 3.0, "n_moulds": 40, "replicas": 4,
+                         "checkpoint_sha256": sha})
+
+
+def test_the_calibration_warns_only_for_a_checkpoint_it_was_not_fitted_for(tmp_path):
+    import hashlib
+
+    checkpoint = tmp_path / "model.pt"
+    checkpoint.write_bytes(b"weights")
+    sha = hashlib.sha256(b"weights").hexdigest()
+    factors, note, warning = spread_calibration(_calibration_table(sha), checkpoint, "exp at abc")
+    assert factors["mean_tension"] == 0.25 and warning is None
+    assert "40 moulds x 4" in note and "mean_tension x0.25" in note and "exp at abc" in note
+    other = tmp_path / "other.pt"
+    other.write_bytes(b"other weights")
+    _, _, warning = spread_calibration(_calibration_table(sha), other)
+    assert sha[:12] in warning and hashlib.sha256(b"other weights").hexdigest()[:12] in warning
+    mixed = _calibration_table(sha)
+    mixed.loc[0, "checkpoint_sha256"] = "0" * 64
+    with pytest.raises(ValueError, match="2 checkpoints"):
+        spread_calibration(mixed, checkpoint)
+    with pytest.raises(ValueError, match="repeats statistics \\['alignment'\\]"):
+        spread_factors(pd.concat([_calibration_table(sha), _calibration_table(sha).iloc[:1]]))
+
+
+def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
+    finding = findings.load_findings()["spread_calibration"]
+    table = finding.frame()
+    factors = spread_factors(table)
+    assert set(factors) == set(SPREAD_STATISTICS)
+    assert (table["factor_lo"] <= table["factor"]).all() and \
+        (table["factor"] <= table["factor_hi"]).all()
+    assert table["checkpoint_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()

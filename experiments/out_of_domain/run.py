@@ -22,7 +22,8 @@ Every mould is simulated `--replicas` times with the product's default solver
 (condor.model.simulate.DEFAULT_SOLVER, the config's budget) at the replica seeds of
 condor.data.seeds (the dataset's global seed, the mould's id), and predicted as
 `condor predict` predicts a mould file (its exact N_c and lattice channels; the spread map;
-condor.surrogate.answer.mould_summary). Per mould:
+condor.surrogate.answer.mould_summary, its statistics' spreads calibrated by the shipped
+factors, condor.findings' spread_calibration, unless --uncalibrated). Per mould:
 
   z             how far the prediction of each whole-mould statistic is from the expected one,
                 in predicted spreads, the replica mean's noise removed:
@@ -73,7 +74,8 @@ from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.model.scenes import get_scene, same_length  # noqa: E402
 from condor.model.simulate import SimResult, warm_up  # noqa: E402
 from condor.stages.dataset import rasterise_result, simulate_mould  # noqa: E402
-from condor.surrogate.answer import domain_table, mould_summary, statistics  # noqa: E402
+from condor.surrogate.answer import (SPREAD_STATISTICS, domain_table, mould_summary,  # noqa: E402
+                                     statistics)
 from condor.surrogate.calibration import interval_coverage, tissue_pixels  # noqa: E402
 
 KINDS = ("inside", "area", "extent", "tethers", "tether_radius", "hidden_tethers", "dogbone")
@@ -82,7 +84,7 @@ OUTSIDE = {"inside": (), "area": ("area / box area",), "extent": ("larger side /
            "tethers": ("tethers",), "tether_radius": ("tether radius / box",),
            "hidden_tethers": ("tethers the input grid misses",),
            "dogbone": ("area / box area", "tethers")}
-STATISTICS = ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
+STATISTICS = SPREAD_STATISTICS  # the statistics whose z and spread ratio are measured
 ID_STRIDE = 100_000  # mould ids of group k: n_moulds + k * ID_STRIDE + j
 MAX_CANDIDATES = 400  # draws per group before giving up on filling it
 AREA_DEVIATION = 0.35  # relative, within condor.data.drawings.AREA_REFUSE (predict refuses beyond)
@@ -203,8 +205,10 @@ def _deviation(name: str, values, predicted):
     return (d + 90.0) % 180.0 - 90.0 if name == "direction" else d
 
 
-def mould_row(kind, mould_id, mould, scene, predictor, fields, n_cells, statuses) -> dict:
-    """Every measure of one mould (module docstring)."""
+def mould_row(kind, mould_id, mould, scene, predictor, fields, n_cells, statuses,
+              factors=None) -> dict:
+    """Every measure of one mould (module docstring); factors: the statistics' spread factors
+    (mould_summary's; None: the drawn spreads uncalibrated)."""
     from condor.design.search import prediction_spread
 
     pixel_size = predictor.pixel_size
@@ -216,7 +220,8 @@ def mould_row(kind, mould_id, mould, scene, predictor, fields, n_cells, statuses
         raise SystemExit(f"{predictor.path} predicts no spread map: nothing to calibrate")
     tissue = tissue_pixels(inputs[None])[0]
     summary = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size, spread,
-                            tissue=tissue, sigma_px=predictor.sigma / pixel_size)
+                            tissue=tissue, sigma_px=predictor.sigma / pixel_size,
+                            factors=factors)
     summary = summary.set_index("statistic")
     table = domain_table(mould, scene).set_index("property")
     tethers = np.asarray(mould.tethers).reshape(-1, 3)
@@ -331,6 +336,22 @@ def describe(kind: str, group: pd.DataFrame) -> str:
 # --------------------------------------------------------------------------- main
 
 
+def scene_predictor(checkpoint, scene):
+    """condor.surrogate.predict.Predictor of `checkpoint` on one torch thread; SystemExit
+    unless it was trained on `scene`'s grid and box."""
+    import torch
+
+    from condor.surrogate.predict import Predictor
+
+    torch.set_num_threads(1)
+    predictor = Predictor(checkpoint)
+    if predictor.native != scene.pixels or predictor.box is None or \
+            not same_length(predictor.box, scene.box):
+        raise SystemExit(f"{checkpoint} was trained on a {predictor.native} px grid of "
+                         f"box {predictor.box}, not the {scene.name!r} scene's")
+    return predictor
+
+
 def main(argv=None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--checkpoint", required=True)
@@ -341,22 +362,25 @@ def main(argv=None) -> None:
     parser.add_argument("--per-kind", type=int, default=6, help="moulds per outside group")
     parser.add_argument("--replicas", type=int, default=4)
     parser.add_argument("--kinds", nargs="+", default=list(KINDS), choices=KINDS)
+    parser.add_argument("--uncalibrated", action="store_true",
+                        help="the statistics' drawn spreads without the shipped calibration "
+                             "factors (condor.findings' spread_calibration, which predict uses)")
     parser.add_argument("--cache", default=str(CACHE))
     parser.add_argument("--out", default=str(Path(__file__).resolve().parent))
     args = parser.parse_args(argv)
 
-    import torch
-
-    from condor.surrogate.predict import Predictor
-
-    torch.set_num_threads(1)
     config = Config.load(*args.config)
     scene = get_scene(args.scene) if args.scene else config.scene
-    predictor = Predictor(args.checkpoint)
-    if predictor.native != scene.pixels or predictor.box is None or \
-            not same_length(predictor.box, scene.box):
-        raise SystemExit(f"{args.checkpoint} was trained on a {predictor.native} px grid of "
-                         f"box {predictor.box}, not the {scene.name!r} scene's")
+    predictor = scene_predictor(args.checkpoint, scene)
+    factors = None
+    if not args.uncalibrated:  # as condor predict calibrates the statistics' spreads
+        from condor.findings import load_findings
+        from condor.surrogate.answer import spread_calibration
+
+        finding = load_findings()["spread_calibration"]
+        factors, note, warning = spread_calibration(finding.frame(), args.checkpoint,
+                                                    f"{finding.experiment} at {finding.commit}")
+        print(note if warning is None else f"warning: {warning}")
     solver, budget = config.solver()
     print(f"scene {scene.name}, seed {config.seed}, ids beyond {config.n_moulds}, {solver} "
           f"({budget:g}), {args.replicas} replicas, checkpoint {args.checkpoint}")
@@ -371,7 +395,7 @@ def main(argv=None) -> None:
                 print(f"{kind} mould {mould_id}: {len(fields)} ok replicas, left out")
                 continue
             rows.append(mould_row(kind, mould_id, mould, scene, predictor, fields, n_cells,
-                                  statuses))
+                                  statuses, factors))
             print(f"{kind} mould {mould_id}: z {rows[-1]['z']:.2f}, spread ratio "
                   f"{rows[-1]['spread_ratio']:.2f}, coverage_90 {rows[-1]['coverage_90']:.2f} "
                   f"({time.perf_counter() - start:.0f} s)", flush=True)

@@ -274,7 +274,7 @@ def cmd_evaluate(args) -> None:
 def cmd_predict(args) -> None:
     from condor.findings import load_findings
     from condor.surrogate.answer import (MASK_ONLY_MEASURED, domain_table, domain_verdict,
-                                         format_summary, mould_summary)
+                                         format_summary, mould_summary, spread_calibration)
     from condor.surrogate.calibration import tissue_pixels
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
@@ -311,14 +311,23 @@ def cmd_predict(args) -> None:
         lattice = predictor.estimate_lattice(inputs)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
     pixel_size = predictor.pixel_size
-    table = None
+    table, calibrated = None, None
     if pixel_size is not None:
         from condor.design.search import prediction_spread
 
         spread = prediction_spread(prediction)  # in normalised units, like the fields
+        factors = None
+        if spread is not None:  # the statistics' spread factors: experiments/spread_calibration
+            calibration = load_findings()["spread_calibration"]
+            factors, calibrated, warning = spread_calibration(
+                calibration.frame(), args.checkpoint, f"{calibration.experiment} at "
+                f"{calibration.commit}")
+            if warning is not None:
+                print(f"condor predict: warning: {warning}", file=sys.stderr)
         table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size,
                               spread, tissue=tissue_pixels(inputs[None])[0],
-                              sigma_px=predictor.sigma / pixel_size, l0_um=args.l0_um)
+                              sigma_px=predictor.sigma / pixel_size, l0_um=args.l0_um,
+                              factors=factors)
     if out.suffix.lower() == ".png":
         plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
                                 symmetrised=bool(predictor.symmetrise))
@@ -329,6 +338,8 @@ def cmd_predict(args) -> None:
             attrs.update({k: v for k, v in placement.record().items() if v is not None})
         if verdict is not None:
             attrs["training_domain"] = verdict
+        if table is not None and calibrated is not None:
+            attrs["spread_calibration"] = calibrated
         if table is not None:
             attrs["statistics"] = {row.statistic: {"value": float(row.value),
                                                    "spread": float(row.spread),
@@ -341,6 +352,8 @@ def cmd_predict(args) -> None:
     if table is not None:
         print("whole-mould statistics, predicted (+- one simulation's predicted spread):")
         print(format_summary(table))
+        if calibrated is not None:
+            print(f"  {calibrated}")
     if verdict is not None:
         print(f"training domain: {verdict}")
 

@@ -54,7 +54,12 @@ OUT_OF_DOMAIN_COLUMNS = ("kind", "outside_on", "description", "n_moulds", "repli
                          "z_hi", "spread_ratio", "spread_ratio_lo", "spread_ratio_hi",
                          "coverage_90", "coverage_90_lo", "coverage_90_hi", "field_error",
                          "field_error_lo", "field_error_hi", "noise_ceiling")
-TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS}
+# One row per statistic with a drawn spread: its calibration factor (condor.surrogate.answer
+# .spread_factors) and the checkpoint it was fitted for.
+SPREAD_CALIBRATION_COLUMNS = ("statistic", "factor", "factor_lo", "factor_hi", "n_moulds",
+                              "replicas", "checkpoint_sha256")
+TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS,
+                 "spread_calibration": SPREAD_CALIBRATION_COLUMNS}
 
 
 def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:

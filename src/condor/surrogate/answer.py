@@ -21,9 +21,14 @@ they read the same at any normalisation:
 
 Spread: the standard deviation of the statistic over draws of fields + spread * z
 (`spread_draws`, as condor.design.search.objective_spread: Gaussian noise smoothed by the
-fields' kernel); the map gives no
-correlations beyond the kernel, so this is an approximation, checked on the confirmed designs
-(docs/design.md).
+fields' kernel), times the statistic's calibration factor (`factors`; `condor predict` reads
+them from condor.findings' "spread_calibration" table, experiments/spread_calibration). The
+draws alone are the wrong size for a whole-mould statistic, each its own way: the map is a
+predictive spread (one simulation's scatter and the surrogate's own error, calibrated as
+per-pixel intervals), well above the replicas' scatter in P and T, so the mean tension's and
+tissue area's draws scatter too much; and it gives no correlations beyond the kernel, while
+orientation domains are larger, so the alignment's scatter too little
+(experiments/spread_calibration/README.md measures both).
 """
 
 from __future__ import annotations
@@ -44,6 +49,9 @@ MASK_ONLY_MEASURED = ("mean tension biased by -9% [-16, -4] and its r 0.93 over 
                       "moulds, against +0.5% and r 0.996 from the mould's geometry")
 
 SUMMARY_DRAWS = 64  # Monte Carlo draws of the spread of each statistic
+# The statistics with a drawn spread, each with its own calibration factor (tissue_area_mm2
+# takes tissue_area's).
+SPREAD_STATISTICS = ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
 
 
 def _sums(f: np.ndarray):
@@ -70,14 +78,19 @@ def statistics(normalised: np.ndarray, n_cells: float, pixel_size: float) -> dic
 
 def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
                   tissue=None, sigma_px: float | None = None, l0_um: float | None = None,
-                  draws: int = SUMMARY_DRAWS, seed: int = 0) -> pd.DataFrame:
+                  draws: int = SUMMARY_DRAWS, seed: int = 0,
+                  factors: dict | None = None) -> pd.DataFrame:
     """One row per statistic: `statistic`, `value`, `spread` (the predicted standard deviation
     of one simulation's statistic; NaN without a reproducibility map), `unit`.
 
     normalised (8, H, W); spread (8, H, W) in normalised units or None; tissue (H, W) bool,
     the pixels over which the reproducibility is averaged (default: the mould's, P > 0);
-    sigma_px: the fields' kernel width in pixels (for the spread's draws)."""
+    sigma_px: the fields' kernel width in pixels (for the spread's draws); factors: each of
+    SPREAD_STATISTICS' calibration factor (check_spread_factors; `spread_factors` of the
+    findings' table), multiplying its drawn spread; None: the draws' spreads as they are."""
 
+    if factors is not None:
+        factors = check_spread_factors(factors)
     normalised = np.asarray(normalised, dtype=np.float64)
     values = statistics(normalised, n_cells, pixel_size)
     spreads = dict.fromkeys(values, math.nan)
@@ -91,6 +104,8 @@ def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
                 spreads[name] = 0.5 * math.degrees(math.sqrt(max(-2 * math.log(length), 0.0)))
             else:
                 spreads[name] = float(np.std([row[name] for row in drawn], ddof=1))
+            if factors is not None:
+                spreads[name] *= factors[name]
     area_unit = "l0^2"
     rows = [("alignment", values["alignment"], spreads["alignment"], "0..1"),
             ("direction", values["direction"], spreads["direction"], "deg from x"),
@@ -110,6 +125,65 @@ def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
         rows.append(("reproducibility", math.nan, math.nan,
                      "not predicted: this checkpoint has no reproducibility map"))
     return pd.DataFrame(rows, columns=["statistic", "value", "spread", "unit"])
+
+
+def check_spread_factors(factors) -> dict:
+    """`factors` as {statistic: float} for exactly SPREAD_STATISTICS; ValueError naming a
+    missing or unknown statistic, or a factor that is not finite and > 0."""
+    given = dict(factors)
+    missing = [name for name in SPREAD_STATISTICS if name not in given]
+    unknown = [name for name in given if name not in SPREAD_STATISTICS]
+    if missing or unknown:
+        raise ValueError(f"spread factors must name exactly {list(SPREAD_STATISTICS)}: "
+                         f"missing {missing}, unknown {unknown}")
+    out = {}
+    for name in SPREAD_STATISTICS:
+        try:
+            value = float(given[name])
+        except (TypeError, ValueError):
+            raise ValueError(f"spread factor of {name} must be a number, got "
+                             f"{given[name]!r}") from None
+        if not (math.isfinite(value) and value > 0):
+            raise ValueError(f"spread factor of {name} must be finite and > 0, got {value}")
+        out[name] = value
+    return out
+
+
+def spread_factors(table: pd.DataFrame) -> dict:
+    """The calibration factors of a spread-calibration table (condor.findings'
+    "spread_calibration": one row per statistic, columns `statistic` and `factor`) as
+    mould_summary takes them; ValueError when a statistic is missing, repeated or unknown."""
+    repeated = sorted(set(table["statistic"][table["statistic"].duplicated()]))
+    if repeated:
+        raise ValueError(f"spread calibration table repeats statistics {repeated}")
+    return check_spread_factors(dict(zip(table["statistic"], table["factor"])))
+
+
+def spread_calibration(table: pd.DataFrame, checkpoint, provenance: str = "") -> tuple:
+    """(factors, note, warning) for `condor predict`: the factors of a spread-calibration table
+    (spread_factors), a line saying where they were fitted (`provenance`: the finding's
+    experiment and commit), and a warning when the file `checkpoint` is not the one they were
+    fitted for (its sha256 against the table's `checkpoint_sha256`), else None."""
+    import hashlib
+    from pathlib import Path
+
+    factors = spread_factors(table)
+    fitted = sorted(set(table["checkpoint_sha256"].astype(str)))
+    if len(fitted) != 1:
+        raise ValueError(f"spread calibration table names {len(fitted)} checkpoints "
+                         f"({[s[:12] for s in fitted]}), not one")
+    first = table.iloc[0]
+    note = (f"spreads calibrated per statistic on {int(first['n_moulds'])} moulds x "
+            f"{int(first['replicas'])} simulations of checkpoint {fitted[0][:12]} ("
+            + ", ".join(f"{name} x{factors[name]:.2g}" for name in SPREAD_STATISTICS)
+            + (f"; {provenance})" if provenance else ")"))
+    sha = hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
+    warning = None
+    if sha != fitted[0]:
+        warning = (f"the statistics' spread factors were fitted for checkpoint {fitted[0][:12]}, "
+                   f"not this one ({sha[:12]}): its spreads may be off by another factor; "
+                   "experiments/spread_calibration/run.py fits them for it")
+    return factors, note, warning
 
 
 def format_summary(table: pd.DataFrame) -> str:

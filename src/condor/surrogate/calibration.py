@@ -91,3 +91,30 @@ def checkerboard(fields) -> np.ndarray:
     f = np.asarray(fields, np.float64)
     c = (f[..., :-1, :-1] - f[..., :-1, 1:] - f[..., 1:, :-1] + f[..., 1:, 1:]) / 4
     return np.sqrt((c * c).mean(axis=(-2, -1)))
+
+
+def statistic_spread_ratio(replica_sd, spread, seed: int = 0) -> tuple[float, float, float]:
+    """How far one simulation's whole-mould statistic scatters against its predicted spread,
+    over moulds: (ratio, lo, hi), ratio = sqrt(mean over moulds of s^2 / spread^2) with its 95%
+    bootstrap interval over moulds (condor.measures.estimators). s: each mould's replica
+    standard deviation (ddof 1), whose square is unbiased for the variance sigma^2 whatever the
+    number of replicas, so the ratio is the noise-corrected root mean square of sigma / spread:
+    1 when the spread is right, above 1 too small. It is also the factor that makes a spread
+    right in that sense (condor.surrogate.answer.mould_summary's `factors`). replica_sd,
+    spread: (M,) per mould; ValueError on a length mismatch, no moulds, a non-finite or
+    negative s, or a non-finite or non-positive spread."""
+    from condor.measures.estimators import bootstrap_interval, root_mean
+
+    s, spread = np.asarray(replica_sd, np.float64), np.asarray(spread, np.float64)
+    if s.ndim != 1 or s.shape != spread.shape or s.size == 0:
+        raise ValueError(f"replica_sd {s.shape} and spread {spread.shape} must be the same "
+                         "(moulds,) shape, with at least one mould")
+    bad = ~np.isfinite(s) | (s < 0)
+    if bad.any():
+        raise ValueError(f"replica standard deviations must be finite and >= 0, got "
+                         f"{s[bad][:5].tolist()} at moulds {np.flatnonzero(bad)[:5].tolist()}")
+    bad = ~np.isfinite(spread) | (spread <= 0)
+    if bad.any():
+        raise ValueError(f"predicted spreads must be finite and > 0, got "
+                         f"{spread[bad][:5].tolist()} at moulds {np.flatnonzero(bad)[:5].tolist()}")
+    return bootstrap_interval((s / spread) ** 2, root_mean, seed=seed)
