@@ -11,11 +11,12 @@ mould (the median over repeats of the whole batch's time divided by its moulds):
 
 - stress: the spring network's stress channels (condor.data.inputs.spring_stress), solved afresh;
 - network forward: the network alone on the 8 planar transforms of each mould, as prediction
-  runs it ("eval": condor.surrogate.models.inference_copy, channels_last), at batch 1 and 16;
+  runs it ("eval": condor.surrogate.models.inference_copy, channels_last), at batch 1, the
+  Predictor's default (PREDICT_BATCH) and 16;
 - network + symmetrisation: condor.surrogate.predict.run_model on inputs prepared: the forward,
   then the outputs moved back, decoded and averaged (the difference is their cost);
 - predict, new moulds: Predictor.__call__ end to end on moulds it has not seen (the stress
-  solved), at batch 1 and at batch 16;
+  solved), at the same batches;
 - predict, again: the same moulds once more (their stress channels come from the cache,
   condor.data.inputs.STRESS_CACHE_SIZE).
 
@@ -97,7 +98,7 @@ def main() -> None:
     from condor.data.moulds import MouldParams, input_channels
     from condor.stages.dataset import make_mould
     from condor.surrogate.samples import INPUT_VARIABLES, apply_symmetry
-    from condor.surrogate.predict import (Predictor, _inference_model, _network,
+    from condor.surrogate.predict import (PREDICT_BATCH, Predictor, _inference_model, _network,
                                           bfloat16_is_native, run_model)
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -136,7 +137,7 @@ def main() -> None:
     transforms = range(8) if predictor.symmetrise else range(1)
     network = _inference_model(predictor.model, predictor.precision) \
         if predictor.mode == "eval" else predictor.model
-    for batch in (1, 16):
+    for batch in sorted({1, PREDICT_BATCH, 16}):
         def forward():
             with torch.inference_mode():
                 for start in range(0, len(x), batch):
@@ -153,7 +154,7 @@ def main() -> None:
         print(f"  network + symmetrisation, batch {batch:2d}:  "
               f"{1e3 * _median_per_mould(symmetrised, args.moulds, args.repeats):7.2f} ms a mould")
 
-    for batch in (1, 16):
+    for batch in sorted({1, PREDICT_BATCH, 16}):
         def fresh():
             clear()
             predictor(masks, batch_size=batch, **extra)

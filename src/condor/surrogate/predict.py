@@ -264,6 +264,14 @@ class Prediction:
     spread: np.ndarray | None = None
 
 
+# Moulds a Predictor runs at a time (8 transforms each when it symmetrises): small enough that
+# the network's activations and the symmetrisation's passes stay in the CPU's cache. Measured
+# on this 2-core machine, the default checkpoint, stress cached (CPU ms a mould, medians of 5):
+# batches of 4 took 11.7 (bfloat16) and 15.3 (float32), of 16 14.1 and 19.1, of 1 13.9 and
+# 17.3 (docs/surrogate.md, "Prediction time").
+PREDICT_BATCH = 4
+
+
 class Predictor:
     """A loaded checkpoint, for repeated predictions."""
 
@@ -363,7 +371,8 @@ class Predictor:
                              "n_cells")
         return estimate_n_cells(inputs, self.pixel_size, self.depth)
 
-    def __call__(self, inputs, batch_size: int = 16, n_cells=None, lattice=None) -> Prediction:
+    def __call__(self, inputs, batch_size: int = PREDICT_BATCH, n_cells=None,
+                 lattice=None) -> Prediction:
         """Predict for inputs (2, H, W) or (S, 2, H, W) (the masks). `n_cells`: N_c per mould
         (a number or (S,)), the lattice count (physics.n_cells_of_mould, or the store's
         `n_cells`); when None and the checkpoint needs it, it is estimated from the inputs.
