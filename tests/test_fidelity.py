@@ -137,3 +137,26 @@ def test_prediction_row_recovers_a_predictors_known_error():
     assert row["n_seeds"] == 1 and np.isnan(row["evaluations_per_mould"])
     plain = float(np.sqrt(np.mean((mu + shift - refs.mean(axis=1)) ** 2)))
     assert plain > 2 * true  # what the uncorrected error would have said
+
+
+def test_the_paper_ensemble_takes_each_mould_at_its_highest_rung_with_two_runs(tmp_path):
+    """A rung whose first run alone is done (a ladder stopped between seeds) leaves the mould
+    at the rung below, instead of dropping it from the ensemble; its second run moves it up."""
+    from condor.studies.fidelity import paper_ensemble
+    from condor.studies.paper_reference import budget_tag
+
+    scene = get_scene("tiny")
+    cache, folder = tmp_path / "cache", tmp_path / "product"
+    for budget, k in ((20, 0), (20, 1), (40, 0)):
+        run_reference(cache, scene, 2026, 5, budget, k)
+    pack_mould(cache, scene, 2026, 5, [20, 40], 2, {"commit": "test"}, folder)
+    assert [r.budget for r in load_reference("tiny", 2026, 5, folder=folder)] == [40]
+    assert load_reference("tiny", 2026, 5, folder=folder, min_runs=3) == []
+    moulds, fields, energy, label = paper_ensemble(scene, 2026, folder)
+    assert moulds == [5] and label == f"anneal {budget_tag(20)}" and fields.shape[1] == 2
+    low = load_reference("tiny", 2026, 5, 20, folder=folder)
+    assert list(energy[0]) == [r.energy_per_cell for r in low]
+    run_reference(cache, scene, 2026, 5, 40, 1)
+    pack_mould(cache, scene, 2026, 5, [20, 40], 2, {"commit": "test"}, folder)
+    moulds, fields, energy, label = paper_ensemble(scene, 2026, folder)
+    assert label == f"anneal {budget_tag(40)}" and fields.shape[1] == 2

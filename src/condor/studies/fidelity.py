@@ -96,17 +96,19 @@ def solver_ensemble(scene, dataset_seed: int, mould_ids, solver: str, budget, re
 
 
 def paper_ensemble(scene, dataset_seed: int, folder=None):
-    """The paper reference the product ships for this scene and seed, at its top rung:
-    (mould ids, normalised fields (M, R, 8, H, W), energies per cell (M, R), label such as
-    'anneal 1e5'), NaN-padded; None when there is none (or the scene is not the preset the
-    references were run in) or no mould has 2 runs."""
+    """The paper reference the product ships for this scene and seed, each mould at its
+    highest rung with at least 2 runs (a rung whose first run alone is done leaves the mould
+    at the rung below): (mould ids, normalised fields (M, R, 8, H, W), energies per cell
+    (M, R), label such as 'anneal 1e5' or 'anneal 1e5/1e6'), NaN-padded; None when there is
+    none (or the scene is not the preset the references were run in) or no mould has 2 runs."""
     from condor.model.scenes import PRESETS
     from condor.studies.paper_reference import budget_tag, load_reference, reference_moulds
 
     if scene.name not in PRESETS or scene != PRESETS[scene.name]:
         return None
     moulds = reference_moulds(scene.name, dataset_seed, folder)
-    refs = [load_reference(scene.name, dataset_seed, m, folder=folder) for m in moulds]
+    refs = [load_reference(scene.name, dataset_seed, m, folder=folder, min_runs=2)
+            for m in moulds]
     keep = [i for i, runs in enumerate(refs) if len(runs) >= 2]
     if not keep:
         return None

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import fcntl
 import json
+from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -175,9 +176,10 @@ class ReferenceRun:
 
 
 def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: float | None = None,
-                   folder=None) -> list[ReferenceRun]:
-    """The shipped ok runs of a mould at `budget` (None: its highest rung with a run);
-    FileNotFoundError naming the file when the product holds no reference of that mould."""
+                   folder=None, min_runs: int = 1) -> list[ReferenceRun]:
+    """The shipped ok runs of a mould at `budget` (None: its highest rung with at least
+    `min_runs` runs; [] when no rung has so many); FileNotFoundError naming the file when the
+    product holds no reference of that mould."""
     path = reference_file(scene_name, dataset_seed, mould_id, folder)
     if not path.exists():
         raise FileNotFoundError(f"no paper reference of {scene_name} mould {mould_id} (seed "
@@ -186,7 +188,11 @@ def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: fl
         meta = json.loads(str(data["meta"]))
         ok = [r for r in meta["runs"] if r["status"] == "ok"]
         if budget is None:
-            budget = max(r["budget"] for r in ok)
+            counts = Counter(r["budget"] for r in ok)
+            rungs = [b for b, n in counts.items() if n >= min_runs]
+            if not rungs:
+                return []
+            budget = max(rungs)
         out = []
         for r in ok:
             if r["budget"] != float(budget):
