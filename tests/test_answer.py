@@ -214,28 +214,43 @@ def test_a_spread_ratio_of_bad_values_is_refused(s, spread, words):
 def _calibration_table(sha: str, factors=(1.5, 1.2, 2.0, 0.25, 0.4)) -> pd.DataFrame:
     return pd.DataFrame({"statistic": SPREAD_STATISTICS, "factor": factors,
                          "factor_lo": 0.5, "factor_hi": 3.0, "n_moulds": 40, "replicas": 4,
-                         "checkpoint_sha256": sha})
+                         "weights_sha256": sha})
 
 
-def test_the_calibration_warns_only_for_a_checkpoint_it_was_not_fitted_for(tmp_path):
-    import hashlib
-
-    checkpoint = tmp_path / "model.pt"
-    checkpoint.write_bytes(b"weights")
-    sha = hashlib.sha256(b"weights").hexdigest()
-    factors, note, warning = spread_calibration(_calibration_table(sha), checkpoint, "exp at abc")
+def test_the_calibration_warns_only_for_a_checkpoint_it_was_not_fitted_for():
+    sha, other = "a" * 64, "b" * 64
+    factors, note, warning = spread_calibration(_calibration_table(sha), sha, "exp at abc")
     assert factors["mean_tension"] == 0.25 and warning is None
     assert "40 moulds x 4" in note and "mean_tension x0.25" in note and "exp at abc" in note
-    other = tmp_path / "other.pt"
-    other.write_bytes(b"other weights")
     _, _, warning = spread_calibration(_calibration_table(sha), other)
-    assert sha[:12] in warning and hashlib.sha256(b"other weights").hexdigest()[:12] in warning
+    assert sha[:12] in warning and other[:12] in warning
     mixed = _calibration_table(sha)
-    mixed.loc[0, "checkpoint_sha256"] = "0" * 64
+    mixed.loc[0, "weights_sha256"] = "0" * 64
     with pytest.raises(ValueError, match="2 checkpoints"):
-        spread_calibration(mixed, checkpoint)
+        spread_calibration(mixed, sha)
     with pytest.raises(ValueError, match="repeats statistics \\['alignment'\\]"):
         spread_factors(pd.concat([_calibration_table(sha), _calibration_table(sha).iloc[:1]]))
+
+
+def test_a_network_is_known_by_its_weights_not_its_file(tmp_path):
+    """Two checkpoints of the same weights whose histories differ (each epoch's wall-clock
+    seconds) have one weights_sha256; another weight does not."""
+    import torch
+
+    from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint, weights_sha256
+    from condor.surrogate.models import UNetConfig, UNetGenerator
+
+    net = UNetGenerator(UNetConfig(size=16, base=4, depth=3), torch.Generator().manual_seed(0))
+    state = {"generator": net.state_dict(), "history": [{"seconds": 1.0}]}
+    paths = [tmp_path / "a.pt", tmp_path / "b.pt"]
+    save_checkpoint(state, paths[0])
+    save_checkpoint(dict(state, history=[{"seconds": 2.0}]), paths[1])
+    assert paths[0].read_bytes() != paths[1].read_bytes()
+    a, b = (weights_sha256(torch.load(p, weights_only=False)) for p in paths)  # as saved
+    assert a == b and len(a) == 64
+    with torch.no_grad():
+        next(net.parameters()).view(-1)[0] += 1e-6
+    assert weights_sha256({"generator": net.state_dict()}) != a
 
 
 def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
@@ -245,4 +260,4 @@ def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
     assert set(factors) == set(SPREAD_STATISTICS)
     assert (table["factor_lo"] <= table["factor"]).all() and \
         (table["factor"] <= table["factor_hi"]).all()
-    assert table["checkpoint_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()
+    assert table["weights_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()

@@ -276,6 +276,7 @@ def cmd_predict(args) -> None:
     from condor.surrogate.answer import (MASK_ONLY_MEASURED, domain_table, domain_verdict,
                                          format_summary, mould_summary, spread_calibration)
     from condor.surrogate.calibration import tissue_pixels
+    from condor.surrogate.checkpoint import weights_sha256
     from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
 
     out = Path(args.out)
@@ -320,7 +321,8 @@ def cmd_predict(args) -> None:
         if spread is not None:  # the statistics' spread factors: experiments/spread_calibration
             calibration = load_findings()["spread_calibration"]
             factors, calibrated, warning = spread_calibration(
-                calibration.frame(), args.checkpoint, f"{calibration.experiment} at "
+                calibration.frame(), weights_sha256(predictor.state),
+                f"{calibration.experiment} at "
                 f"{calibration.commit}")
             if warning is not None:
                 print(f"condor predict: warning: {warning}", file=sys.stderr)

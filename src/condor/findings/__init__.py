@@ -57,7 +57,7 @@ OUT_OF_DOMAIN_COLUMNS = ("kind", "outside_on", "description", "n_moulds", "repli
 # One row per statistic with a drawn spread: its calibration factor (condor.surrogate.answer
 # .spread_factors) and the checkpoint it was fitted for.
 SPREAD_CALIBRATION_COLUMNS = ("statistic", "factor", "factor_lo", "factor_hi", "n_moulds",
-                              "replicas", "checkpoint_sha256")
+                              "replicas", "weights_sha256")
 TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS,
                  "spread_calibration": SPREAD_CALIBRATION_COLUMNS}
 

@@ -159,16 +159,14 @@ def spread_factors(table: pd.DataFrame) -> dict:
     return check_spread_factors(dict(zip(table["statistic"], table["factor"])))
 
 
-def spread_calibration(table: pd.DataFrame, checkpoint, provenance: str = "") -> tuple:
+def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "") -> tuple:
     """(factors, note, warning) for `condor predict`: the factors of a spread-calibration table
     (spread_factors), a line saying where they were fitted (`provenance`: the finding's
-    experiment and commit), and a warning when the file `checkpoint` is not the one they were
-    fitted for (its sha256 against the table's `checkpoint_sha256`), else None."""
-    import hashlib
-    from pathlib import Path
-
+    experiment and commit), and a warning when the checkpoint's network, `weights` (its
+    condor.surrogate.checkpoint.weights_sha256), is not the one they were fitted for (the
+    table's `weights_sha256`), else None."""
     factors = spread_factors(table)
-    fitted = sorted(set(table["checkpoint_sha256"].astype(str)))
+    fitted = sorted(set(table["weights_sha256"].astype(str)))
     if len(fitted) != 1:
         raise ValueError(f"spread calibration table names {len(fitted)} checkpoints "
                          f"({[s[:12] for s in fitted]}), not one")
@@ -177,11 +175,10 @@ def spread_calibration(table: pd.DataFrame, checkpoint, provenance: str = "") ->
             f"{int(first['replicas'])} simulations of checkpoint {fitted[0][:12]} ("
             + ", ".join(f"{name} x{factors[name]:.2g}" for name in SPREAD_STATISTICS)
             + (f"; {provenance})" if provenance else ")"))
-    sha = hashlib.sha256(Path(checkpoint).read_bytes()).hexdigest()
     warning = None
-    if sha != fitted[0]:
+    if weights != fitted[0]:
         warning = (f"the statistics' spread factors were fitted for checkpoint {fitted[0][:12]}, "
-                   f"not this one ({sha[:12]}): its spreads may be off by another factor; "
+                   f"not this one ({weights[:12]}): its spreads may be off by another factor; "
                    "experiments/spread_calibration/run.py fits them for it")
     return factors, note, warning
 

@@ -44,6 +44,20 @@ def save_checkpoint(state: dict, path) -> None:
     os.replace(tmp, path)
 
 
+def weights_sha256(state: dict) -> str:
+    """sha256 (hex) of a loaded checkpoint's generator weights (names, dtypes, shapes, bytes):
+    what identifies a trained network. The file's own bytes do not: its history records each
+    epoch's wall-clock seconds, so two bit-identical trainings write different files."""
+    import hashlib
+
+    digest = hashlib.sha256()
+    for name, tensor in sorted(state["generator"].items()):
+        array = tensor.detach().cpu().contiguous().numpy()
+        digest.update(f"{name}|{array.dtype}|{array.shape}|".encode())
+        digest.update(array.tobytes())
+    return digest.hexdigest()
+
+
 def load_checkpoint(path, map_location="cpu") -> dict:
     """Read a checkpoint; CheckpointNotFoundError when absent, CheckpointError when it is not
     a condor surrogate checkpoint."""
