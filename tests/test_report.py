@@ -294,6 +294,19 @@ def test_fidelity_verdict_says_how_far_each_solver_is_from_the_paper():
     assert "not measured" in report.fidelity_verdict(fidelity_table().iloc[:0])
 
 
+@pytest.mark.parametrize("relaxed, state", [
+    ((0.04, 0.0, 0.08), "not resolved from"),   # upper bound within half the scatter (0.11)
+    ((0.2, 0.1, 0.3), "resolved from"),          # lower bound above 0
+    ((0.058, 0.0, 0.15), "not shown to sample")])  # neither: the interval reaches 0 and the bar
+def test_the_fidelity_verdict_has_three_states(relaxed, state):
+    """The default run at db81145 read 0 [0, 0.105] against a bar of 0.08 and the page called
+    the solver "resolved from the paper's CONDOR": a distance whose interval reaches 0 is not
+    resolved, nor shown to be the same."""
+    table = fidelity_table(relaxed=relaxed)
+    assert report.fidelity_state(table.iloc[0]) == state
+    assert f"{state} it)" in report.fidelity_verdict(table).split(";")[1]
+
+
 def test_ladder_verdict():
     table = pd.DataFrame({"rung": ["dataset solver", "anneal 1000 + relax", "anneal 1000 + relax"],
                           "budget": [np.nan, 1000.0, 1000.0], "distance_to_dataset": [0, 0.02, 0.3],
