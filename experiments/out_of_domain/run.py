@@ -376,9 +376,11 @@ def main(argv=None) -> None:
     if not args.uncalibrated:  # as condor predict calibrates the statistics' spreads
         from condor.findings import load_findings
         from condor.surrogate.answer import spread_calibration
+        from condor.surrogate.checkpoint import weights_sha256
 
         finding = load_findings()["spread_calibration"]
-        factors, note, warning = spread_calibration(finding.frame(), args.checkpoint,
+        factors, note, warning = spread_calibration(finding.frame(),
+                                                    weights_sha256(predictor.state),
                                                     f"{finding.experiment} at {finding.commit}")
         print(note if warning is None else f"warning: {warning}")
     solver, budget = config.solver()
