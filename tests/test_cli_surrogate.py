@@ -491,3 +491,5 @@ def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
         best.polygon.symmetric_difference(placed.polygon).area < 1e-9
     assert best.n_tethers <= 4 and len(table)
     assert (out / "figures" / "designs.png").is_file()
+    assert "the objective's predicted spread is" in captured.err  # calibrated or not, said
+    assert np.isfinite(pd.read_csv(out / "summary.csv")["spread_factor"]).all()

@@ -211,3 +211,50 @@ def test_the_cache_tells_designs_apart_by_everything_the_surrogate_reads(depends
     assert evaluate.n_predicted == (2 if depends_on_design else 1)
     assert predictor.seen == ([100.0, 101.0] if depends_on_design else [100.0])
     assert np.all(np.isfinite(scores))
+
+
+@pytest.mark.parametrize("spec, statistic", [
+    ("alignment:x", "alignment_x"), ("alignment:y", "alignment_x"),
+    ("-alignment:90deg", "alignment_x"), ("alignment:x; max_tension<0.5", "alignment_x"),
+    ("mean_tension", "mean_tension"), ("-mean_tension", "mean_tension"),
+    ("alignment:45deg", None), ("alignment:x@centre", None), ("mean_tension@centre", None),
+    ("alignment:x+0.5*uniformity", None), ("max_tension", None), ("uniformity", None)])
+def test_calibrated_statistic_names_the_whole_mould_statistic_the_objective_equals(spec,
+                                                                                  statistic):
+    from condor.design.search import calibrated_statistic
+
+    assert calibrated_statistic(parse_objective(spec)) == statistic
+
+
+def test_the_calibrated_objectives_are_multiples_of_their_statistics():
+    """The premise of calibrated_statistic: on random fields, alignment:x and alignment:y are
+    +-1 x condor.surrogate.answer's alignment_x, and mean_tension its mean_tension."""
+    from condor.design.search import calibrated_statistic
+    from condor.surrogate.answer import statistics
+
+    rng = np.random.default_rng(5)
+    fields = rng.uniform(0.0, 1.0, (3, 8, 16, 16))
+    for spec, sign in (("alignment:x", 1), ("alignment:y", -1), ("mean_tension", 1),
+                       ("-mean_tension", -1)):
+        objective = parse_objective(spec)
+        values = objective.evaluate(fields)["objective"].to_numpy()
+        name = calibrated_statistic(objective)
+        expected = [statistics(f, 100.0, 1.0)[name] for f in fields]
+        assert np.allclose(values, sign * np.asarray(expected)), spec
+
+
+def test_design_spread_factor_is_the_findings_factor_of_the_statistic():
+    import torch
+
+    from condor.findings import load_findings
+    from condor.stages.design import objective_spread_factor
+
+    table = load_findings()["spread_calibration"].frame().set_index("statistic")["factor"]
+    other = type("P", (), {"state": {"generator": {"w": torch.zeros(3)}}})()  # not the fitted net
+    factor, line = objective_spread_factor(parse_objective("alignment:y"), other)
+    assert factor == pytest.approx(table["alignment_x"]) and "calibrated" in line
+    assert "warning" in line  # fitted for another checkpoint
+    factor, line = objective_spread_factor(parse_objective("-mean_tension"), other)
+    assert factor == pytest.approx(table["mean_tension"])
+    factor, line = objective_spread_factor(parse_objective("uniformity"), other)
+    assert factor == 1.0 and "uncalibrated" in line

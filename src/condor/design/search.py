@@ -335,6 +335,28 @@ def prediction_spread(prediction) -> np.ndarray | None:
     return None
 
 
+# The whole-mould statistics of condor.surrogate.answer whose spreads are calibrated
+# (condor.findings' "spread_calibration"), by the objective quantity that equals them.
+CALIBRATED_QUANTITIES = {"alignment": "alignment_x", "mean_tension": "mean_tension"}
+
+
+def calibrated_statistic(objective: Objective) -> str | None:
+    """The calibrated whole-mould statistic (condor.surrogate.answer.statistics) that the
+    objective is a multiple of, so that its predicted spread takes that statistic's factor;
+    None when it is none. Only a single term over the whole box counts: alignment along x
+    or y (alignment:y = -alignment_x) and mean_tension; constraints do not change the value."""
+    if len(objective.terms) != 1:
+        return None
+    _, quantity = objective.terms[0]
+    if not quantity.region.is_everything or quantity.name not in CALIBRATED_QUANTITIES:
+        return None
+    if quantity.name == "alignment":
+        quarter = 2 * quantity.angle / math.pi  # 0 along x, 1 along y
+        if not math.isclose(quarter, round(quarter), abs_tol=1e-9):
+            return None
+    return CALIBRATED_QUANTITIES[quantity.name]
+
+
 def objective_spread(objective: Objective, normalised: np.ndarray, spread: np.ndarray,
                      sigma_px: float, draws: int = 64, seed: int = 0) -> np.ndarray:
     """Predicted standard deviation (S,) of one simulation's objective, from a spread map.

@@ -34,6 +34,7 @@ from condor import plots
 from condor.design import (confirm, constrained_space, dataset_baseline, default_space,
                            design_table,
                            parse_objective, predict_designs, search, simulate_designs)
+from condor.design.search import calibrated_statistic
 from condor.data.drawings import write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
@@ -166,16 +167,21 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     space = constrained_space(scene, your_moulds[0], keep, parsed) if keep else \
         default_space(scene, parsed)
     out = _out_dir(out_dir, force, n_top)
+    spread_factor, spread_note = objective_spread_factor(parsed, predictor)
+    say(spread_note)
     yours = None
     if your_moulds:
         say(f"phase 1/4: your {len(your_moulds)} mould(s): predicting and simulating "
             f"{replicas} replica(s) each")
         table, yours = _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas,
                                           seed, solver, progress)
+        table["predicted_spread"] *= spread_factor
         table.to_csv(out / "your_moulds.csv", index=False)
     constraint = f", keeping your mould's {' and '.join(keep)}" if keep else ""
     say(f"phase 2/4: searching {budget} designs with the surrogate{constraint}")
     result = search(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
+    if "predicted_spread" in result.designs:
+        result.designs["predicted_spread"] *= spread_factor
     log.info("search: %d designs, %.0f per CPU-minute; best predicted %s = %.4g",
              result.evaluations, result.designs_per_cpu_minute, objective,
              result.ranked().iloc[0]["objective"])
@@ -186,6 +192,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
                            baseline=baseline, solver=solver, progress=progress)
     table = design_table(result, confirmation, n=max(n_top, 10))
     table.to_csv(out / "designs.csv", index=False)
+    confirmation.summary["spread_factor"] = spread_factor
     confirmation.summary.to_csv(out / "summary.csv", index=False)
     result.history.to_csv(out / "search_history.csv", index=False)
     say("phase 4/4: drawings, predictions and figures")
@@ -201,6 +208,30 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     _figures(out / "figures", table, confirmation, result, predicted, objective, yours)
     log.info("\n%s", confirmation.summary.to_string(index=False))
     return confirmation.summary
+
+
+def objective_spread_factor(objective, predictor) -> tuple[float, str]:
+    """(factor, line): the calibration factor of the objective's predicted spread, the
+    factor condor predict applies to the whole-mould statistic the objective equals
+    (condor.design.search.calibrated_statistic; condor.findings' "spread_calibration"), and a
+    line saying so; (1.0, a line saying it is uncalibrated) for any other objective."""
+    from condor.findings import load_findings
+    from condor.surrogate.answer import spread_calibration
+    from condor.surrogate.checkpoint import weights_sha256
+
+    statistic = calibrated_statistic(objective)
+    if statistic is None:
+        return 1.0, ("the objective's predicted spread is uncalibrated (the one-simulation "
+                     "spread drawn from the spread map): only alignment along x or y and "
+                     "mean_tension over the whole box have calibrated spreads "
+                     "(experiments/spread_calibration)")
+    calibration = load_findings()["spread_calibration"]
+    factors, _, warning = spread_calibration(
+        calibration.frame(), weights_sha256(predictor.state),
+        f"{calibration.experiment} at {calibration.commit}")
+    line = (f"the objective's predicted spread is {statistic}'s, calibrated: x"
+            f"{factors[statistic]:.3g} ({calibration.experiment} at {calibration.commit})")
+    return factors[statistic], line + (f"; warning: {warning}" if warning else "")
 
 
 def _score_your_moulds(parsed, moulds, scene, predictor, replicas, seed, solver, progress):
