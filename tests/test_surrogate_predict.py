@@ -152,3 +152,23 @@ def test_auto_precision_takes_bfloat16_only_where_it_is_native(checkpoint, monke
     monkeypatch.setattr(predict_module, "bfloat16_is_native", lambda: native)
     assert Predictor(checkpoint, device="cpu").precision == ("bfloat16" if native else "float32")
     assert Predictor(checkpoint, device="cpu", precision="float32").precision == "float32"
+
+
+def test_the_fused_decode_equals_torch_s_moves_decode_and_sums(checkpoint, moulds, monkeypatch):
+    """predict.FUSED_DECODE (one compiled pass: physics.symmetrised_decode_kernel) against the
+    batched torch path it replaces, with a spread factor that is not 1 and moulds of
+    different N_c."""
+    import importlib
+
+    predict = importlib.import_module("condor.surrogate.predict")  # the package exports a function of this name
+
+    predictor = Predictor(checkpoint, device="cpu", precision="float32")
+    predictor.scaling.spread_factor = np.linspace(0.7, 1.9, 8)
+    masks = np.stack([input_channels(m, predictor.native) for m in moulds])
+    extra = predictor.mould_arguments(moulds)
+    fused = predictor(masks, **extra)
+    monkeypatch.setattr(predict, "FUSED_DECODE", False)
+    plain = predictor(masks, **extra)
+    for a, b in ((fused.raw, plain.raw), (fused.spread, plain.spread)):
+        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
+    assert len(set(np.round(extra["n_cells"]))) > 1

@@ -53,6 +53,7 @@ gives its measured error).
 
 from __future__ import annotations
 
+import numba
 import numpy as np
 import torch
 from torch.nn import functional as F
@@ -324,3 +325,29 @@ def tissue_mask(inputs: torch.Tensor, reach: int = TISSUE_REACH_PX) -> torch.Ten
     `reach` pixels (where the fields are non-zero)."""
     occupied = inputs.amax(dim=1, keepdim=True)
     return F.max_pool2d(occupied, 2 * reach + 1, stride=1, padding=reach)
+
+
+# --- the symmetrised sum (condor.surrogate.predict._symmetrised_physics) ---------------------
+
+@numba.njit(cache=True)
+def symmetrised_sum_kernel(fields, spread, pixel_source, field_source, weight, variance_weight,
+                           mean, variance):
+    """The symmetrisation's sums over the planar transforms, each output moved back as it is
+    read. fields, spread (K, M, 8, H*W) float32: decode's fields and spreads of transform k's
+    output of mould m, pixels row-major; pixel_source (K, H*W): the pixel of transform k's
+    output that apply_symmetry(k, inverse=True) moves onto each pixel; field_source, weight,
+    variance_weight (K, 8): predict._FIELD_MAPS. Adds into mean and variance (M, 8, H*W)
+    float64: over k, weight[k, f] x field field_source[k, f] moved back, and variance_weight
+    x its spread squared."""
+    k_count, m_count, _, n_pixels = fields.shape
+    for m in range(m_count):
+        for k in range(k_count):
+            source = pixel_source[k]
+            for f in range(mean.shape[1]):
+                g = field_source[k, f]
+                w, v = weight[k, f], variance_weight[k, f]
+                values, spreads = fields[k, m, g], spread[k, m, g]
+                for p in range(n_pixels):
+                    q = source[p]
+                    mean[m, f, p] += w * values[q]
+                    variance[m, f, p] += v * (float(spreads[q]) * float(spreads[q]))

@@ -143,6 +143,49 @@ _FIELD_MAPS = _field_maps()
 _DECODE_MOULDS = 2  # moulds decoded at a time by the batched symmetrisation
 
 
+# The physics head's symmetrisation decoded in place and summed in one compiled pass
+# (_symmetrised_physics) instead of torch's strided moves, decode and sums, which measured
+# about half of a prediction's time; the same numbers to float32 rounding
+# (tests/test_surrogate_predict.py).
+FUSED_DECODE = True
+_PIXEL_SOURCES: dict = {}
+
+
+def _pixel_sources(side: int) -> np.ndarray:
+    """(8, side*side) int64: for each planar transform k, the pixel of its output that
+    apply_symmetry(k, inverse=True) moves onto each pixel (row-major)."""
+    if side not in _PIXEL_SOURCES:
+        index = torch.arange(side * side, dtype=torch.float64).reshape(1, 1, side, side)
+        _PIXEL_SOURCES[side] = np.stack([
+            apply_symmetry(k, inputs=index, inverse=True)[0].reshape(-1).numpy().astype(np.int64)
+            for k in range(N_SYMMETRIES // 2)])
+    return _PIXEL_SOURCES[side]
+
+
+def _symmetrised_physics(head, out: torch.Tensor, n: int, n_cells) -> tuple[np.ndarray,
+                                                                             np.ndarray]:
+    """_symmetrised's batched mean and spread for a physics head, from the network's output
+    `out` (8 n, 16, H, H) float32 of the 8 planar transforms of n moulds: decoded where the
+    network wrote them (decode is per pixel but for the softmax over the grid, which does not
+    depend on the pixels' order), then moved back and summed in one compiled pass
+    (physics.symmetrised_sum_kernel): float64 (n, 8, H, H) each."""
+    from .physics import symmetrised_sum_kernel
+
+    planar, side = N_SYMMETRIES // 2, out.shape[-1]
+    cells = torch.from_numpy(np.tile(np.asarray(n_cells, dtype=np.float32).reshape(n), planar))
+    fields, spread = head.decode(out.contiguous(), cells)  # NCHW: decode's slices are planes
+    shape = (planar, n, len(FIELD_NAMES), side * side)
+    source, weight, variance_weight = _FIELD_MAPS
+    mean = np.zeros((n, len(FIELD_NAMES), side * side))
+    variance = np.zeros_like(mean)
+    symmetrised_sum_kernel(fields.numpy().reshape(shape), spread.numpy().reshape(shape),
+                           _pixel_sources(side), source.astype(np.int64),
+                           weight.astype(np.float64), variance_weight.astype(np.float64),
+                           mean, variance)
+    shape = (n, len(FIELD_NAMES), side, side)
+    return (mean / N_SYMMETRIES).reshape(shape), np.sqrt(variance / N_SYMMETRIES).reshape(shape)
+
+
 def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
                  input_kind: str = "mask", batched: bool = False) -> tuple[np.ndarray, np.ndarray | None]:
     """Mean over the 16 symmetries g of g^-1 G(g x), physical units (float64), and the root
@@ -159,6 +202,9 @@ def _symmetrised(model, scaling, x: torch.Tensor, n_cells,
         n = x.shape[0]
         out = _network(model, torch.cat([apply_symmetry(k, inputs=x, input_kind=input_kind)[0]
                                          for k in planar]))
+        if getattr(scaling, "kind", None) == "physics" and out.device.type == "cpu" \
+                and out.shape[-1] == out.shape[-2] and FUSED_DECODE:
+            return _symmetrised_physics(scaling, out, n, n_cells)
         out = out.reshape((len(planar), n) + out.shape[1:])
         source, weight, variance_weight = (torch.from_numpy(a).to(out.device)
                                            for a in _FIELD_MAPS)
