@@ -67,7 +67,7 @@ FAITHFUL_SOLVER = "relaxed_anneal"  # samples the paper's ensemble (docs/model.m
 DEFAULT_SOLVER = FAITHFUL_SOLVER
 DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
                   "minimise": float(minimise_mod.MAX_ITER), "hybrid": 30.0,
-                  "relaxed_anneal": 150.0}
+                  "relaxed_anneal": 200.0}
 DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
                 "hybrid": minimise_mod.FTOL, "relaxed_anneal": lbfgs_mod.FTOL}
 RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
