@@ -93,6 +93,9 @@ def main(argv=None) -> int:
     ap.add_argument("--reference", type=float, nargs="+", default=[1e5],
                     help="reference rungs (moves per cell)")
     ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--reference-folder", type=Path, default=None,
+                    help="read the reference runs from this folder (paper_reference/run.py "
+                         "--product) instead of the shipped product")
     ap.add_argument("--out", type=Path)
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
@@ -100,7 +103,7 @@ def main(argv=None) -> int:
     moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
     refs = {}
     for budget in a.reference:
-        f, e = map(list, zip(*(reference_rung(scene, a.seed, m, budget)
+        f, e = map(list, zip(*(reference_rung(scene, a.seed, m, budget, a.reference_folder)
                                  for m in a.moulds)))
         keep = [i for i, x in enumerate(f) if len(x) >= 2]
         refs[budget] = (keep, f, e)

@@ -61,6 +61,9 @@ def main(argv=None) -> int:
     ap.add_argument("--order", choices=("run", "mould"), default="run",
                     help="within a rung: run k of every mould first, or every run of a mould")
     ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--product", type=Path, default=None,
+                    help="pack finished runs into this folder instead of the shipped product "
+                         "(src/condor/reference): a study's own reference")
     a = ap.parse_args(argv)
     os.nice(10)
     scene = get_scene(a.scene)
@@ -83,7 +86,8 @@ def main(argv=None) -> int:
                 r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)
                 log(f"done {path.name}: {r.status}, E/cell {r.energy_per_cell:.6f}, "
                     f"{r.seconds:.0f} CPU s")
-                out = pack_mould(a.cache, scene, a.seed, mould, [budget], a.runs, provenance)
+                out = pack_mould(a.cache, scene, a.seed, mould, [budget], a.runs, provenance,
+                                 folder=a.product)
                 log(f"packed into {out}")
             finally:
                 path.with_name(path.name + ".lock").unlink(missing_ok=True)
