@@ -447,3 +447,19 @@ def test_a_mould_s_stress_is_solved_once_and_cached(monkeypatch):
     inputs.stress_channels(masks[2:])  # a third mould: the first is dropped
     inputs.stress_channels(masks[:1])
     assert len(calls) == 4
+
+
+def test_moulds_solved_in_parallel_threads_get_their_own_channels(monkeypatch):
+    """stress_channels solves the moulds it has not seen in threads: each mould's channels are
+    its own serial solve's, in the caller's order, duplicates solved once; and a call with more
+    new moulds than the cache holds still returns every one of them."""
+    monkeypatch.setattr(inputs, "_STRESS_CACHE", type(inputs._STRESS_CACHE)())
+    monkeypatch.setattr(inputs, "STRESS_CACHE_SIZE", 2)
+    moulds = [_mould(i) for i in (4, 6, 7, 9)]
+    masks = np.stack([input_channels(m, SCENE.pixels) for m in moulds])
+    order = [3, 0, 2, 0, 1, 3]
+    out = inputs.stress_channels(masks[order], shear=True, threads=3)
+    for s, m in enumerate(order):
+        np.testing.assert_array_equal(out[s], inputs.spring_stress(masks[m], shear=True))
+    assert len(inputs._STRESS_CACHE) == 2
+    assert not np.allclose(out[0], out[1])  # distinct moulds, distinct channels

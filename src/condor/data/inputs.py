@@ -29,9 +29,14 @@ principal axes tilt: odd under each mirror, unchanged by the transpose.
 from __future__ import annotations
 
 import math
+import os
 from collections import OrderedDict
+from concurrent.futures import ThreadPoolExecutor
 
+import llvmlite.binding as _llvm
+import numba
 import numpy as np
+from numba.extending import get_cython_function_address
 
 # TrainConfig.inputs; both: masks, then lattice; mechanics: masks, lattice, stress channels
 INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear")
@@ -133,46 +138,113 @@ def estimate_lattice_channels(masks: np.ndarray, pixel_size: float, depth: float
     return out[0] if masks.ndim == 3 else out
 
 
-def _spring_bonds(domain: np.ndarray):
-    """Every bond of the network on the True pixels of `domain` (H, W), all SPRING_BONDS
-    directions at once: the flat (row-major) pixel index of each bond's two ends (start,
-    end = start + the bond's offset), its stiffness, its length and its unit (x, y) vector
-    (each an array over the bonds; the unit vectors (B, 2))."""
-    H, W = domain.shape
-    flat = np.arange(H * W).reshape(H, W)
-    starts, ends, stiffness, lengths, units = [], [], [], [], []
-    for (dy, dx), k in SPRING_BONDS:
-        y0, y1, x0, x1 = max(0, -dy), min(H, H - dy), max(0, -dx), min(W, W - dx)
-        both = domain[y0:y1, x0:x1] & domain[y0 + dy:y1 + dy, x0 + dx:x1 + dx]
-        start = flat[y0:y1, x0:x1][both]
-        length = math.hypot(dx, dy)
-        starts.append(start)
-        ends.append(start + dy * W + dx)
-        stiffness.append(np.full(len(start), k))
-        lengths.append(np.full(len(start), length))
-        units.append(np.broadcast_to(np.array([dx, dy]) / length, (len(start), 2)))
-    return (np.concatenate(starts), np.concatenate(ends), np.concatenate(stiffness),
-            np.concatenate(lengths), np.concatenate(units))
+# The bonds as arrays for the compiled kernels: (row, column) offset and stiffness each
+_BOND_DY = np.array([dy for (dy, _), _ in SPRING_BONDS], dtype=np.int64)
+_BOND_DX = np.array([dx for (_, dx), _ in SPRING_BONDS], dtype=np.int64)
+_BOND_K = np.array([k for _, k in SPRING_BONDS], dtype=np.float64)
+# LAPACK's banded Cholesky solve (dpbsv, scipy's own LAPACK at the address that
+# scipy.linalg.cython_lapack exports), registered under a symbol so that the compiled solve
+# calls it without the GIL (moulds solve in parallel threads) and is cached on disk like the
+# rest of the package's kernels.
+_llvm.add_symbol("condor_dpbsv", get_cython_function_address("scipy.linalg.cython_lapack",
+                                                              "dpbsv"))
+_dpbsv = numba.types.ExternalFunction("condor_dpbsv",
+                                      numba.types.void(*[numba.types.voidptr] * 9))
 
 
-def _banded_order(free: np.ndarray, start: np.ndarray, end: np.ndarray):
-    """The free pixels numbered row by row or column by column, whichever keeps every pair of
-    bonded free pixels closer in the numbering: (index (H*W,) flat pixel -> its number, or -1
-    for a pixel that is not free; the largest number difference across a bond)."""
+@numba.njit(cache=True, nogil=True)
+def _numbering(free: np.ndarray, by_columns: bool) -> np.ndarray:
+    """(H*W,) int64: each free pixel's number, row by row (or column by column), -1 elsewhere."""
     H, W = free.shape
-    best = None
-    for by_columns in (False, True):
-        index = np.full(H * W, -1, dtype=np.int64)
-        where = np.flatnonzero((free.T if by_columns else free).ravel())
-        if by_columns:  # a flat index of the transpose, x * H + y, back to y * W + x
-            where = (where % H) * W + where // H
-        index[where] = np.arange(len(where))
-        i, j = index[start], index[end]
-        both = (i >= 0) & (j >= 0)
-        width = int(np.abs(i[both] - j[both]).max()) if both.any() else 0
-        if best is None or width < best[1]:
-            best = (index, width)
-    return best
+    index = np.full(H * W, -1, dtype=np.int64)
+    count = 0
+    for a in range(W if by_columns else H):
+        for b in range(H if by_columns else W):
+            y, x = (b, a) if by_columns else (a, b)
+            if free[y, x]:
+                index[y * W + x] = count
+                count += 1
+    return index
+
+
+@numba.njit(cache=True, nogil=True)
+def _bond_width(domain: np.ndarray, index: np.ndarray) -> int:
+    """The largest number difference across a bond between two numbered pixels."""
+    H, W = domain.shape
+    width = 0
+    for y in range(H):
+        for x in range(W):
+            i = index[y * W + x]
+            if i < 0:
+                continue
+            for b in range(len(_BOND_DY)):
+                y2, x2 = y + _BOND_DY[b], x + _BOND_DX[b]
+                if 0 <= y2 < H and 0 <= x2 < W:
+                    j = index[y2 * W + x2]
+                    if j >= 0 and abs(i - j) > width:
+                        width = abs(i - j)
+    return width
+
+
+@numba.njit(cache=True, nogil=True)
+def _spring_solve(domain: np.ndarray, fixed: np.ndarray) -> tuple:
+    """spring_displacement's solve, compiled: ((H*W, 2) displacements, LAPACK's info)."""
+    H, W = domain.shape
+    u = np.zeros((H * W, 2))
+    free = domain & ~fixed
+    if not fixed.any() or not free.any():
+        return u, 0
+    index = _numbering(free, False)
+    width = _bond_width(domain, index)
+    columns = _numbering(free, True)
+    width_columns = _bond_width(domain, columns)
+    if width_columns < width:
+        index, width = columns, width_columns
+    n, kd = 2 * int(free.sum()), 2 * width + 1  # unknowns; superdiagonals of K
+    # LAPACK's upper band, column-major (kd + 1, n): K[r, c] (r <= c) at ab[c, kd + r - c]
+    ab = np.zeros((n, kd + 1))
+    rhs = np.zeros(n)
+    for y in range(H):
+        for x in range(W):
+            if not domain[y, x]:
+                continue
+            for b in range(len(_BOND_DY)):
+                dy, dx = _BOND_DY[b], _BOND_DX[b]
+                y2, x2 = y + dy, x + dx
+                if not (0 <= y2 < H and 0 <= x2 < W and domain[y2, x2]):
+                    continue
+                length = math.sqrt(dx * dx + dy * dy)
+                nx, ny, k = dx / length, dy / length, _BOND_K[b]
+                kxx, kxy, kyy = k * nx * nx, k * nx * ny, k * ny * ny
+                i, j = index[y * W + x], index[y2 * W + x2]
+                # a bond's 2x2 block k n n^T: + on both ends' diagonal blocks, - between two
+                # free ends; -dE/du at u = 0: the bond pulls its ends together with k |d|
+                for p, sign in ((i, 1.0), (j, -1.0)):
+                    if p >= 0:
+                        q = 2 * p
+                        ab[q, kd] += kxx
+                        ab[q + 1, kd - 1] += kxy
+                        ab[q + 1, kd] += kyy
+                        rhs[q] += sign * k * length * nx
+                        rhs[q + 1] += sign * k * length * ny
+                if i >= 0 and j >= 0:
+                    lo, hi = 2 * min(i, j), 2 * max(i, j)
+                    ab[hi, kd + lo - hi] -= kxx
+                    ab[hi + 1, kd + lo - hi - 1] -= kxy
+                    ab[hi, kd + lo + 1 - hi] -= kxy
+                    ab[hi + 1, kd + lo - hi] -= kyy
+    for c in range(n):
+        ab[c, kd] += 1e-9  # the ridge
+    # dpbsv("U", n, kd, 1, ab, kd + 1, rhs, n, info): rhs becomes the solution
+    args = np.array([n, kd, 1, kd + 1, n, 0], dtype=np.int32)
+    uplo = np.array([ord("U")], dtype=np.uint8)
+    _dpbsv(uplo.ctypes, args[0:1].ctypes, args[1:2].ctypes, args[2:3].ctypes, ab.ctypes,
+           args[3:4].ctypes, rhs.ctypes, args[4:5].ctypes, args[5:6].ctypes)
+    for p in range(H * W):
+        if index[p] >= 0:
+            u[p, 0] = rhs[2 * index[p]]
+            u[p, 1] = rhs[2 * index[p] + 1]
+    return u, int(args[5])
 
 
 def spring_displacement(masks: np.ndarray) -> np.ndarray:
@@ -185,54 +257,46 @@ def spring_displacement(masks: np.ndarray) -> np.ndarray:
     One direct solve of K u = f (K the Hessian of E over the free pixels' 2 coordinates,
     f = -grad E at u = 0): K is symmetric positive definite (the ridge pins a part the posts
     do not hold) and banded once the free pixels are numbered along the mould's narrower
-    direction (_banded_order: about 2 x 50 + 1 diagonals at 64 px), so a banded Cholesky
-    (LAPACK's pbsv) solves it; it agrees with a general sparse LU solve of the same system to
-    round-off (tested), several times faster."""
-    import scipy.linalg
-
+    direction (about 2 x 45 + 1 diagonals at 64 px), so a banded Cholesky (LAPACK's pbsv)
+    solves it; it agrees with a general sparse LU solve of the same system to round-off
+    (tested), several times faster. Assembly and solve are one compiled call that releases
+    the GIL (stress_channels solves moulds in parallel threads)."""
     masks = np.asarray(masks)
     if masks.ndim != 3 or masks.shape[0] != 2:
         raise ValueError(f"masks must have shape (2, H, W), got {masks.shape}")
     domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
+    u, info = _spring_solve(np.ascontiguousarray(domain), np.ascontiguousarray(fixed))
+    if info != 0:
+        raise np.linalg.LinAlgError(f"the spring network's stiffness is not positive definite "
+                                    f"(LAPACK dpbsv info {info})")
+    return u.reshape(domain.shape + (2,))
+
+
+@numba.njit(cache=True, nogil=True)
+def _bond_stress(domain: np.ndarray, u: np.ndarray, shear: bool) -> np.ndarray:
+    """spring_stress's sums over the bonds, compiled: (2 or 3, H*W) float64."""
     H, W = domain.shape
-    u = np.zeros((H * W, 2))
-    free = domain & ~fixed
-    if not fixed.any() or not free.any():
-        return u.reshape(H, W, 2)
-    start, end, k, length, unit = _spring_bonds(domain)
-    index, width = _banded_order(free, start, end)
-    n, kd = 2 * int(free.sum()), 2 * width + 1  # unknowns; superdiagonals of K
-    i, j = index[start], index[end]
-    # a bond's 2x2 block k n n^T: + on both ends' diagonal blocks, - between two free ends;
-    # the upper triangle only, stored as LAPACK's upper band: K[r, c] at ab[kd + r - c, c]
-    kxx, kxy, kyy = k * unit[:, 0] ** 2, k * unit[:, 0] * unit[:, 1], k * unit[:, 1] ** 2
-    rows, cols, values = [], [], []
-    for p in (i, j):
-        on = p >= 0
-        q = 2 * p[on]
-        rows += [q, q, q + 1]
-        cols += [q, q + 1, q + 1]
-        values += [kxx[on], kxy[on], kyy[on]]
-    on = (i >= 0) & (j >= 0)
-    lo, hi = 2 * np.minimum(i[on], j[on]), 2 * np.maximum(i[on], j[on])
-    rows += [lo, lo, lo + 1, lo + 1]
-    cols += [hi, hi + 1, hi, hi + 1]
-    values += [-kxx[on], -kxy[on], -kxy[on], -kyy[on]]
-    rows, cols = np.concatenate(rows), np.concatenate(cols)
-    band = np.bincount((kd + rows - cols) * n + cols, np.concatenate(values),
-                       minlength=(kd + 1) * n).reshape(kd + 1, n)
-    band[kd] += 1e-9
-    # -dE/du at u = 0: each bond pulls its ends together with k |d|
-    pull = (k * length)[:, None] * unit
-    rhs = np.zeros(n)
-    for p, sign in ((i, 1.0), (j, -1.0)):
-        on = p >= 0
-        for a in range(2):
-            rhs += np.bincount(2 * p[on] + a, sign * pull[on, a], minlength=n)
-    solved = scipy.linalg.solveh_banded(band, rhs, check_finite=False)
-    numbered = index >= 0
-    u[numbered] = solved.reshape(-1, 2)[index[numbered]]
-    return u.reshape(H, W, 2)
+    stress = np.zeros((3 if shear else 2, H * W))
+    for y in range(H):
+        for x in range(W):
+            if not domain[y, x]:
+                continue
+            for b in range(len(_BOND_DY)):
+                dy, dx = _BOND_DY[b], _BOND_DX[b]
+                y2, x2 = y + dy, x + dx
+                if not (0 <= y2 < H and 0 <= x2 < W and domain[y2, x2]):
+                    continue
+                length = math.sqrt(dx * dx + dy * dy)
+                nx, ny = dx / length, dy / length
+                p, q = y * W + x, y2 * W + x2
+                tension = _BOND_K[b] * (nx * (u[q, 0] - u[p, 0]) + ny * (u[q, 1] - u[p, 1])
+                                        + length)
+                half = 0.5 * tension * length
+                for c, share in ((0, half * nx * nx), (1, half * ny * ny), (2, half * nx * ny)):
+                    if c < stress.shape[0]:
+                        stress[c, p] += share
+                        stress[c, q] += share
+    return stress
 
 
 def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
@@ -245,16 +309,9 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     u = spring_displacement(masks).reshape(-1, 2)
     domain = (masks[0] > 0) | (masks[1] > 0)
     H, W = domain.shape
-    components = ((0, 0), (1, 1), (0, 1)) if shear else ((0, 0), (1, 1))
-    stress = np.zeros((len(components), H * W))
     if not np.any(masks[1] > 0):
-        return stress.reshape(-1, H, W).astype(np.float32)
-    start, end, k, length, unit = _spring_bonds(domain)
-    tension = k * (np.einsum("ba,ba->b", u[end] - u[start], unit) + length)
-    for c, (a, b) in enumerate(components):
-        share = 0.5 * tension * unit[:, a] * unit[:, b] * length
-        stress[c] = np.bincount(start, share, minlength=H * W) + \
-            np.bincount(end, share, minlength=H * W)
+        return np.zeros((3 if shear else 2, H, W), dtype=np.float32)
+    stress = _bond_stress(np.ascontiguousarray(domain), u, shear)
     return stress.reshape(-1, H, W).astype(np.float32)
 
 
@@ -265,23 +322,44 @@ STRESS_CACHE_SIZE = 1024
 _STRESS_CACHE: "OrderedDict[bytes, np.ndarray]" = OrderedDict()
 
 
-def stress_channels(masks: np.ndarray, shear: bool = False) -> np.ndarray:
+def _cpus() -> int:
+    """The CPUs this process may run on (its affinity: a SLURM job's share, not the node's)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
+def stress_channels(masks: np.ndarray, shear: bool = False, threads: int | None = None) -> np.ndarray:
     """(S, 2, H, W) masks -> (S, 2, H, W) stress channels ((S, 3, H, W) with `shear`), each
     distinct mould solved once (and kept: the last STRESS_CACHE_SIZE moulds solved are not
-    solved again)."""
+    solved again). The moulds not in the cache are solved in `threads` parallel threads
+    (default: the CPUs this process may use; the solve releases the GIL)."""
     masks = np.asarray(masks)
     if masks.ndim != 4 or masks.shape[1] != 2:
         raise ValueError(f"masks must have shape (S, 2, H, W), got {masks.shape}")
-    out = np.empty((masks.shape[0], 3 if shear else 2) + masks.shape[2:], dtype=np.float32)
-    for s, sample in enumerate(masks):
+    keys, found, missing = [], {}, {}
+    for sample in masks:
         binary = np.ascontiguousarray(sample > 0)
         key = bytes([shear]) + repr(binary.shape).encode() + np.packbits(binary).tobytes()
+        keys.append(key)
         if key in _STRESS_CACHE:
             _STRESS_CACHE.move_to_end(key)
-        else:
-            _STRESS_CACHE[key] = spring_stress(sample, shear)
-            _STRESS_CACHE[key].setflags(write=False)
-            while len(_STRESS_CACHE) > STRESS_CACHE_SIZE:
-                _STRESS_CACHE.popitem(last=False)
-        out[s] = _STRESS_CACHE[key]
+            found[key] = _STRESS_CACHE[key]
+        elif key not in missing:
+            missing[key] = binary
+    workers = min(len(missing), threads or _cpus())
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            solved = list(pool.map(lambda b: spring_stress(b, shear), missing.values()))
+    else:
+        solved = [spring_stress(b, shear) for b in missing.values()]
+    for key, stress in zip(missing, solved):
+        stress.setflags(write=False)
+        found[key] = _STRESS_CACHE[key] = stress
+        while len(_STRESS_CACHE) > STRESS_CACHE_SIZE:
+            _STRESS_CACHE.popitem(last=False)
+    out = np.empty((masks.shape[0], 3 if shear else 2) + masks.shape[2:], dtype=np.float32)
+    for s, key in enumerate(keys):
+        out[s] = found[key]
     return out
