@@ -9,7 +9,8 @@ On generated moulds of the checkpoint's scene (with --random: the preset's netwo
 default scene, random weights: the time needs the architecture, not trained weights), per
 mould (the median over repeats of the whole batch's time divided by its moulds):
 
-- stress: the spring network's stress channels (condor.data.inputs.spring_stress), solved afresh;
+- stress: the spring network's stress channels (condor.data.inputs.stress_channels), solved
+  afresh, in one thread and in one a CPU (the default: the moulds solve in parallel threads);
 - network forward: the network alone on the 8 planar transforms of each mould, as prediction
   runs it ("eval": condor.surrogate.models.inference_copy, channels_last), at batch 1, the
   Predictor's default (PREDICT_BATCH) and 16;
@@ -21,8 +22,9 @@ mould (the median over repeats of the whole batch's time divided by its moulds):
   condor.data.inputs.STRESS_CACHE_SIZE).
 
 Wall-clock times on a shared machine are rough: say what else ran (the load is printed).
-torch uses 1 thread unless --threads says otherwise; so does the linear algebra of the stress
-solve (OpenBLAS), unless OPENBLAS_NUM_THREADS is set.
+torch uses 1 thread unless --threads says otherwise (the product uses torch's default: one a
+core); the stress solves of a batch run in parallel threads, one a CPU, whatever --threads
+says, each solve's BLAS on one thread (condor.data.inputs._one_blas_thread).
 """
 
 from __future__ import annotations
@@ -34,10 +36,8 @@ import tempfile
 import time
 from pathlib import Path
 
-os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")  # before numpy loads OpenBLAS
-
-import numpy as np  # noqa: E402
-import torch  # noqa: E402
+import numpy as np
+import torch
 
 
 def _median_per_mould(fn, n_moulds: int, repeats: int) -> float:
@@ -121,10 +121,12 @@ def main() -> None:
 
     stress = [m for m in ("stress", "stress_tensor") if m in INPUT_VARIABLES[predictor.inputs_kind]]
     if stress:
-        def solve():
-            clear()
-            inputs_mod.stress_channels(masks, stress[0] == "stress_tensor")
-        print(f"  stress solve, new moulds:           {1e3 * _median_per_mould(solve, args.moulds, args.repeats):7.2f} ms a mould")
+        for threads in sorted({1, inputs_mod._cpus()}):
+            def solve():
+                clear()
+                inputs_mod.stress_channels(masks, stress[0] == "stress_tensor", threads=threads)
+            print(f"  stress solve, new moulds, {threads} thread(s): "
+                  f"{1e3 * _median_per_mould(solve, args.moulds, args.repeats):7.2f} ms a mould")
 
     # the network alone, on inputs prepared once
     clear()

@@ -583,6 +583,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "predicted and simulated, as the design to beat")
     p.add_argument("--keep", default=None, choices=["footprint", "posts", "footprint,posts",
                                                     "posts,footprint"],
+                   metavar="footprint|posts|footprint,posts",
                    help="constrain the search to your (first) mould: footprint keeps its "
                         "outline and searches where its posts go; posts keeps its number of "
                         "posts; footprint,posts both")
