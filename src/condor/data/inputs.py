@@ -138,10 +138,13 @@ def estimate_lattice_channels(masks: np.ndarray, pixel_size: float, depth: float
     return out[0] if masks.ndim == 3 else out
 
 
-# The bonds as arrays for the compiled kernels: (row, column) offset and stiffness each
+# The bonds as arrays for the compiled kernels: (row, column) offset, stiffness, length and
+# unit (x, y) vector of each SPRING_BONDS entry
 _BOND_DY = np.array([dy for (dy, _), _ in SPRING_BONDS], dtype=np.int64)
 _BOND_DX = np.array([dx for (_, dx), _ in SPRING_BONDS], dtype=np.int64)
 _BOND_K = np.array([k for _, k in SPRING_BONDS], dtype=np.float64)
+_BOND_LENGTH = np.sqrt(_BOND_DX ** 2 + _BOND_DY ** 2).astype(np.float64)
+_BOND_NX, _BOND_NY = _BOND_DX / _BOND_LENGTH, _BOND_DY / _BOND_LENGTH
 # LAPACK's banded Cholesky solve (dpbsv, scipy's own LAPACK at the address that
 # scipy.linalg.cython_lapack exports), registered under a symbol so that the compiled solve
 # calls it without the GIL (moulds solve in parallel threads) and is cached on disk like the
@@ -150,6 +153,26 @@ _llvm.add_symbol("condor_dpbsv", get_cython_function_address("scipy.linalg.cytho
                                                               "dpbsv"))
 _dpbsv = numba.types.ExternalFunction("condor_dpbsv",
                                       numba.types.void(*[numba.types.voidptr] * 9))
+
+
+@numba.njit(cache=True, nogil=True)
+def _domain_bonds(domain: np.ndarray) -> np.ndarray:
+    """Every bond of the network on the True pixels of `domain` (H, W): (B, 3) int64 rows of
+    its start's flat (row-major) pixel, its end's (start + the bond's offset) and its
+    SPRING_BONDS entry."""
+    H, W = domain.shape
+    bonds = np.empty((len(_BOND_DY) * H * W, 3), dtype=np.int64)
+    count = 0
+    for y in range(H):
+        for x in range(W):
+            if not domain[y, x]:
+                continue
+            for b in range(len(_BOND_DY)):
+                y2, x2 = y + _BOND_DY[b], x + _BOND_DX[b]
+                if 0 <= y2 < H and 0 <= x2 < W and domain[y2, x2]:
+                    bonds[count, 0], bonds[count, 1], bonds[count, 2] = y * W + x, y2 * W + x2, b
+                    count += 1
+    return bonds[:count]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -168,21 +191,13 @@ def _numbering(free: np.ndarray, by_columns: bool) -> np.ndarray:
 
 
 @numba.njit(cache=True, nogil=True)
-def _bond_width(domain: np.ndarray, index: np.ndarray) -> int:
+def _bond_width(bonds: np.ndarray, index: np.ndarray) -> int:
     """The largest number difference across a bond between two numbered pixels."""
-    H, W = domain.shape
     width = 0
-    for y in range(H):
-        for x in range(W):
-            i = index[y * W + x]
-            if i < 0:
-                continue
-            for b in range(len(_BOND_DY)):
-                y2, x2 = y + _BOND_DY[b], x + _BOND_DX[b]
-                if 0 <= y2 < H and 0 <= x2 < W:
-                    j = index[y2 * W + x2]
-                    if j >= 0 and abs(i - j) > width:
-                        width = abs(i - j)
+    for e in range(len(bonds)):
+        i, j = index[bonds[e, 0]], index[bonds[e, 1]]
+        if i >= 0 and j >= 0 and abs(i - j) > width:
+            width = abs(i - j)
     return width
 
 
@@ -194,45 +209,38 @@ def _spring_solve(domain: np.ndarray, fixed: np.ndarray) -> tuple:
     free = domain & ~fixed
     if not fixed.any() or not free.any():
         return u, 0
+    bonds = _domain_bonds(domain)
     index = _numbering(free, False)
-    width = _bond_width(domain, index)
+    width = _bond_width(bonds, index)
     columns = _numbering(free, True)
-    width_columns = _bond_width(domain, columns)
+    width_columns = _bond_width(bonds, columns)
     if width_columns < width:
         index, width = columns, width_columns
     n, kd = 2 * int(free.sum()), 2 * width + 1  # unknowns; superdiagonals of K
     # LAPACK's upper band, column-major (kd + 1, n): K[r, c] (r <= c) at ab[c, kd + r - c]
     ab = np.zeros((n, kd + 1))
     rhs = np.zeros(n)
-    for y in range(H):
-        for x in range(W):
-            if not domain[y, x]:
-                continue
-            for b in range(len(_BOND_DY)):
-                dy, dx = _BOND_DY[b], _BOND_DX[b]
-                y2, x2 = y + dy, x + dx
-                if not (0 <= y2 < H and 0 <= x2 < W and domain[y2, x2]):
-                    continue
-                length = math.sqrt(dx * dx + dy * dy)
-                nx, ny, k = dx / length, dy / length, _BOND_K[b]
-                kxx, kxy, kyy = k * nx * nx, k * nx * ny, k * ny * ny
-                i, j = index[y * W + x], index[y2 * W + x2]
-                # a bond's 2x2 block k n n^T: + on both ends' diagonal blocks, - between two
-                # free ends; -dE/du at u = 0: the bond pulls its ends together with k |d|
-                for p, sign in ((i, 1.0), (j, -1.0)):
-                    if p >= 0:
-                        q = 2 * p
-                        ab[q, kd] += kxx
-                        ab[q + 1, kd - 1] += kxy
-                        ab[q + 1, kd] += kyy
-                        rhs[q] += sign * k * length * nx
-                        rhs[q + 1] += sign * k * length * ny
-                if i >= 0 and j >= 0:
-                    lo, hi = 2 * min(i, j), 2 * max(i, j)
-                    ab[hi, kd + lo - hi] -= kxx
-                    ab[hi + 1, kd + lo - hi - 1] -= kxy
-                    ab[hi, kd + lo + 1 - hi] -= kxy
-                    ab[hi + 1, kd + lo - hi] -= kyy
+    for e in range(len(bonds)):
+        b = bonds[e, 2]
+        length, nx, ny, k = _BOND_LENGTH[b], _BOND_NX[b], _BOND_NY[b], _BOND_K[b]
+        kxx, kxy, kyy = k * nx * nx, k * nx * ny, k * ny * ny
+        i, j = index[bonds[e, 0]], index[bonds[e, 1]]
+        # a bond's 2x2 block k n n^T: + on both ends' diagonal blocks, - between two free
+        # ends; -dE/du at u = 0: the bond pulls its ends together with k |d|
+        for p, sign in ((i, 1.0), (j, -1.0)):
+            if p >= 0:
+                q = 2 * p
+                ab[q, kd] += kxx
+                ab[q + 1, kd - 1] += kxy
+                ab[q + 1, kd] += kyy
+                rhs[q] += sign * k * length * nx
+                rhs[q + 1] += sign * k * length * ny
+        if i >= 0 and j >= 0:
+            lo, hi = 2 * min(i, j), 2 * max(i, j)
+            ab[hi, kd + lo - hi] -= kxx
+            ab[hi + 1, kd + lo - hi - 1] -= kxy
+            ab[hi, kd + lo + 1 - hi] -= kxy
+            ab[hi + 1, kd + lo - hi] -= kyy
     for c in range(n):
         ab[c, kd] += 1e-9  # the ridge
     # dpbsv("U", n, kd, 1, ab, kd + 1, rhs, n, info): rhs becomes the solution
@@ -275,27 +283,17 @@ def spring_displacement(masks: np.ndarray) -> np.ndarray:
 @numba.njit(cache=True, nogil=True)
 def _bond_stress(domain: np.ndarray, u: np.ndarray, shear: bool) -> np.ndarray:
     """spring_stress's sums over the bonds, compiled: (2 or 3, H*W) float64."""
-    H, W = domain.shape
-    stress = np.zeros((3 if shear else 2, H * W))
-    for y in range(H):
-        for x in range(W):
-            if not domain[y, x]:
-                continue
-            for b in range(len(_BOND_DY)):
-                dy, dx = _BOND_DY[b], _BOND_DX[b]
-                y2, x2 = y + dy, x + dx
-                if not (0 <= y2 < H and 0 <= x2 < W and domain[y2, x2]):
-                    continue
-                length = math.sqrt(dx * dx + dy * dy)
-                nx, ny = dx / length, dy / length
-                p, q = y * W + x, y2 * W + x2
-                tension = _BOND_K[b] * (nx * (u[q, 0] - u[p, 0]) + ny * (u[q, 1] - u[p, 1])
-                                        + length)
-                half = 0.5 * tension * length
-                for c, share in ((0, half * nx * nx), (1, half * ny * ny), (2, half * nx * ny)):
-                    if c < stress.shape[0]:
-                        stress[c, p] += share
-                        stress[c, q] += share
+    bonds = _domain_bonds(domain)
+    stress = np.zeros((3 if shear else 2, domain.size))
+    for e in range(len(bonds)):
+        p, q, b = bonds[e, 0], bonds[e, 1], bonds[e, 2]
+        length, nx, ny = _BOND_LENGTH[b], _BOND_NX[b], _BOND_NY[b]
+        tension = _BOND_K[b] * (nx * (u[q, 0] - u[p, 0]) + ny * (u[q, 1] - u[p, 1]) + length)
+        half = 0.5 * tension * length
+        for c, share in ((0, half * nx * nx), (1, half * ny * ny), (2, half * nx * ny)):
+            if c < stress.shape[0]:
+                stress[c, p] += share
+                stress[c, q] += share
     return stress
 
 
