@@ -28,6 +28,7 @@ principal axes tilt: odd under each mirror, unchanged by the transpose.
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 from collections import OrderedDict
@@ -203,13 +204,14 @@ def _bond_width(bonds: np.ndarray, index: np.ndarray) -> int:
 
 @numba.njit(cache=True, nogil=True)
 def _spring_solve(domain: np.ndarray, fixed: np.ndarray) -> tuple:
-    """spring_displacement's solve, compiled: ((H*W, 2) displacements, LAPACK's info)."""
+    """spring_displacement's solve, compiled: ((H*W, 2) displacements, LAPACK's info, the
+    bonds (_domain_bonds), which the stress sums reuse)."""
     H, W = domain.shape
     u = np.zeros((H * W, 2))
     free = domain & ~fixed
-    if not fixed.any() or not free.any():
-        return u, 0
     bonds = _domain_bonds(domain)
+    if not fixed.any() or not free.any():
+        return u, 0, bonds
     index = _numbering(free, False)
     width = _bond_width(bonds, index)
     columns = _numbering(free, True)
@@ -252,7 +254,7 @@ def _spring_solve(domain: np.ndarray, fixed: np.ndarray) -> tuple:
         if index[p] >= 0:
             u[p, 0] = rhs[2 * index[p]]
             u[p, 1] = rhs[2 * index[p] + 1]
-    return u, int(args[5])
+    return u, int(args[5]), bonds
 
 
 def spring_displacement(masks: np.ndarray) -> np.ndarray:
@@ -270,21 +272,25 @@ def spring_displacement(masks: np.ndarray) -> np.ndarray:
     (tested), several times faster. Assembly and solve are one compiled call that releases
     the GIL (stress_channels solves moulds in parallel threads)."""
     masks = np.asarray(masks)
+    return _solved(masks)[0].reshape(masks.shape[1:] + (2,))
+
+
+def _solved(masks: np.ndarray) -> tuple:
+    """_spring_solve on (2, H, W) masks, its info checked: ((H*W, 2) displacements, bonds)."""
     if masks.ndim != 3 or masks.shape[0] != 2:
         raise ValueError(f"masks must have shape (2, H, W), got {masks.shape}")
     domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
-    u, info = _spring_solve(np.ascontiguousarray(domain), np.ascontiguousarray(fixed))
+    u, info, bonds = _spring_solve(np.ascontiguousarray(domain), np.ascontiguousarray(fixed))
     if info != 0:
         raise np.linalg.LinAlgError(f"the spring network's stiffness is not positive definite "
                                     f"(LAPACK dpbsv info {info})")
-    return u.reshape(domain.shape + (2,))
+    return u, bonds
 
 
 @numba.njit(cache=True, nogil=True)
-def _bond_stress(domain: np.ndarray, u: np.ndarray, shear: bool) -> np.ndarray:
-    """spring_stress's sums over the bonds, compiled: (2 or 3, H*W) float64."""
-    bonds = _domain_bonds(domain)
-    stress = np.zeros((3 if shear else 2, domain.size))
+def _bond_stress(bonds: np.ndarray, u: np.ndarray, shear: bool) -> np.ndarray:
+    """spring_stress's sums over the bonds (_domain_bonds), compiled: (2 or 3, H*W) float64."""
+    stress = np.zeros((3 if shear else 2, len(u)))
     for e in range(len(bonds)):
         p, q, b = bonds[e, 0], bonds[e, 1], bonds[e, 2]
         length, nx, ny = _BOND_LENGTH[b], _BOND_NX[b], _BOND_NY[b]
@@ -304,13 +310,11 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     summed over the pixel's bonds; units of k per unit contraction strain; 0 outside the
     mould and its posts. `shear`: (3, H, W), SHEAR_CHANNEL (a = x, b = y) third."""
     masks = np.asarray(masks)
-    u = spring_displacement(masks).reshape(-1, 2)
-    domain = (masks[0] > 0) | (masks[1] > 0)
-    H, W = domain.shape
+    u, bonds = _solved(masks)
+    H, W = masks.shape[1:]
     if not np.any(masks[1] > 0):
         return np.zeros((3 if shear else 2, H, W), dtype=np.float32)
-    stress = _bond_stress(np.ascontiguousarray(domain), u, shear)
-    return stress.reshape(-1, H, W).astype(np.float32)
+    return _bond_stress(bonds, u, shear).reshape(-1, H, W).astype(np.float32)
 
 
 # Stress channels of the moulds solved last (a mould's masks and `shear` -> its channels),
@@ -328,18 +332,19 @@ def _cpus() -> int:
         return os.cpu_count() or 1
 
 
-_BLAS_CONTROLLER = []
+@functools.cache
+def _blas_controller():
+    """threadpoolctl's view of the BLAS libraries loaded (found once)."""
+    from threadpoolctl import ThreadpoolController
+
+    return ThreadpoolController()
 
 
 def _one_blas_thread():
     """A context in which BLAS (the OpenBLAS under LAPACK's banded Cholesky) runs on one
     thread: its own threads on a solve this small cost more than they give (measured 4.0
     against 2.5 ms a mould, and 5.7 against 1.4 with two solves in parallel on 2 CPUs)."""
-    if not _BLAS_CONTROLLER:
-        from threadpoolctl import ThreadpoolController
-
-        _BLAS_CONTROLLER.append(ThreadpoolController())
-    return _BLAS_CONTROLLER[0].limit(limits=1, user_api="blas")
+    return _blas_controller().limit(limits=1, user_api="blas")
 
 
 def stress_channels(masks: np.ndarray, shear: bool = False, threads: int | None = None) -> np.ndarray:
