@@ -23,7 +23,7 @@ import numpy as np
 
 from condor.design import default_space, parse_objective, search
 from condor.design.analytic import AnalyticPredictor
-from condor.data.moulds import input_channels
+from condor.moulds.mould import input_channels
 from condor.model.scenes import PRESETS, get_scene
 
 

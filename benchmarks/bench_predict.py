@@ -95,7 +95,8 @@ def main() -> None:
 
     import condor.data.inputs as inputs_mod
     from condor.cli import _checkpoint_scene
-    from condor.data.moulds import MouldParams, input_channels
+    from condor.moulds.paper import MouldParams
+    from condor.moulds.mould import input_channels
     from condor.stages.dataset import make_mould
     from condor.surrogate.samples import INPUT_VARIABLES, apply_symmetry
     from condor.surrogate.predict import (PREDICT_BATCH, Predictor, _inference_model, _network,

@@ -17,7 +17,7 @@ import xarray as xr
 from PIL import Image
 
 from condor import cli
-from condor.data.moulds import input_channels, load_json
+from condor.moulds.mould import input_channels, load_json
 from condor.data.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
 from condor.surrogate.models import PREDICTION_MODES
@@ -481,7 +481,7 @@ def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
     assert "yours " in captured.out and " -> best " in captured.out
     for phase in ("phase 1/4", "phase 2/4", "phase 3/4", "phase 4/4"):
         assert phase in captured.err  # one line per phase, not on a terminal
-    from condor.data.drawings import load_mould
+    from condor.moulds.read import load_mould
     from condor.model.scenes import get_scene
 
     placed = load_mould(mould, get_scene("default"), l0_um=16, fit="extent")  # box 31.25 = BOX

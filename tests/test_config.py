@@ -8,7 +8,7 @@ import pytest
 import yaml
 
 from condor.config import SCHEMA_PATH, Config, ConfigError, load_schema
-from condor.data.moulds import MouldParams
+from condor.moulds.paper import MouldParams
 from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 
 CONFIG_DIR = Path(__file__).resolve().parents[1] / "config"
@@ -159,13 +159,13 @@ def test_moulds_with_a_paper_reference_are_test_moulds_at_any_size():
 def test_tether_free_test_moulds_take_their_own_replicas():
     """simulation.replicas.test_tether_free: the tether-free test moulds (as the generator
     draws them) take it, every other mould its split's count; null leaves them alone."""
-    from condor.data.moulds import generate_mould
+    from condor.moulds.paper import generate_mould
 
     config = Config.default(n_moulds=60, split={"test": 30},
                             moulds={"no_tether_fraction": 0.3},
                             simulation={"replicas": {"test": 4, "test_tether_free": 11}})
     params = config.mould_params()
-    expected = [11 if split == "test" and generate_mould(config.seed, i, config.scene.box,
+    expected = [11 if split == "test" and generate_mould(config.seed, i, config.scene,
                                                          params).n_tethers == 0
                 else config.simulation["replicas"][split]
                 for i, split in enumerate(config.splits())]

@@ -8,7 +8,7 @@ from condor.design.objectives import EmptyRegionError, parse_objective
 from condor.design.search import (DesignSearchError, objective_spread, predict_designs,
                                   prediction_spread, search)
 from condor.design.space import DesignSpace, default_space
-from condor.data.moulds import input_channels
+from condor.moulds.mould import input_channels
 from condor.model.scenes import get_scene
 
 SCENE = get_scene("tiny")  # 15.6 l0 box, 32 px: cheap geometry and rasters

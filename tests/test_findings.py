@@ -80,12 +80,12 @@ def test_the_report_states_no_measured_finding_as_a_constant():
 
 
 def test_the_out_of_domain_table_names_domain_table_counts_and_its_groups():
-    from condor.data.moulds import generate_mould
+    from condor.moulds.paper import generate_mould
     from condor.model.scenes import get_scene
     from condor.surrogate.answer import domain_table, outside_counts
 
     scene = get_scene("default")
-    properties = set(domain_table(generate_mould(1, 0, box=scene.box), scene)["property"])
+    properties = set(domain_table(generate_mould(1, 0, scene), scene)["property"])
     table = findings.load_findings()["out_of_domain"].frame()
     assert list(table.columns[:len(findings.OUT_OF_DOMAIN_COLUMNS)]) == \
         list(findings.OUT_OF_DOMAIN_COLUMNS)

@@ -10,7 +10,8 @@ from shapely.geometry import Point, box
 
 from condor.data import inputs
 from condor.model.lattice import build_lattice, lattice_sites
-from condor.data.moulds import Mould, generate_mould, input_channels
+from condor.moulds.mould import Mould, input_channels
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.surrogate.samples import DataError, model_inputs, usable_samples
 from condor.surrogate.physics import estimate_n_cells
@@ -23,7 +24,7 @@ SCENE = get_scene("default")
 
 
 def _mould(mould_id=4, seed=2026):
-    return generate_mould(seed, mould_id, box=SCENE.box)
+    return generate_mould(seed, mould_id, SCENE)
 
 
 def test_lattice_sites_are_build_lattices_cells():

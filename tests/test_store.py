@@ -534,12 +534,14 @@ def test_a_generated_mould_with_holes_and_the_most_tethers_round_trips(tmp_path)
     """Generated moulds have holes (the union of copies encloses them) and may keep every
     tether the generator's limit allows: seed 1's mould 2890 has 6 holes, its mould 1603 the
     36 tethers of MouldParams.max_tethers."""
-    from condor.data.moulds import generate_mould
+    from condor.model.scenes import get_scene
+    from condor.moulds.paper import generate_mould
 
     path = tmp_path / "d.zarr"
     create_store(path, spec(n=2))
     masks, lattice = np.ones((2, PIXELS, PIXELS), "uint8"), np.zeros((2, PIXELS, PIXELS), np.float32)
-    moulds = [generate_mould(1, 2890), generate_mould(1, 1603)]
+    paper = get_scene("paper")
+    moulds = [generate_mould(1, 2890, paper), generate_mould(1, 1603, paper)]
     assert len(moulds[0].polygon.interiors) == 6 and moulds[1].n_tethers == MAX_TETHERS
     for k, made in enumerate(moulds):
         write_inputs(path, k, masks, {**MOULD_META, "n_tethers": made.n_tethers}, lattice=lattice,

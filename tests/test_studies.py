@@ -10,7 +10,7 @@ from shapely.geometry import box
 from condor.model.energy import random_orientations
 from condor.data.fields import FIELD_NAMES, normalise
 from condor.model.lattice import build_lattice
-from condor.data.moulds import Mould
+from condor.moulds.mould import Mould
 from condor.model.scenes import get_scene
 from condor.model.simulate import simulate_lattice
 from condor.data.store import StoreSpec, create_store, open_store, sample_index, write_inputs, write_sample

@@ -2,6 +2,8 @@
 symmetrised prediction, resumable training, the spread in predictions and their files, and the
 calibration measures."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -10,7 +12,9 @@ from shapely.geometry import Polygon, box
 
 from condor import cli, plots
 from condor.model.lattice import build_lattice
-from condor.data.moulds import generate_mould, save_json
+from condor.model.scenes import get_scene
+from condor.moulds.paper import generate_mould
+from condor.moulds.mould import save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels, z_of)
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
@@ -375,7 +379,7 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
     plots.prediction_panels(inputs[0], single, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
     # a mould JSON through `condor predict`: N_c is its exact lattice count at the scene's depth
-    mould = generate_mould(3, 1, box=predictor.box)
+    mould = generate_mould(3, 1, replace(get_scene("tiny"), box=predictor.box))
     save_json(mould, tmp_path / "m.json")
     cli.main(["predict", str(tmp_path / "m.json"), "--checkpoint", str(path), "--out",
               str(tmp_path / "m.zarr")])

@@ -7,7 +7,8 @@ import numpy as np
 import pytest
 import torch
 
-from condor.data.moulds import MouldParams, input_channels
+from condor.moulds.paper import MouldParams
+from condor.moulds.mould import input_channels
 from condor.model.scenes import get_scene
 from condor.stages.dataset import make_mould
 from condor.surrogate.checkpoint import save_checkpoint

@@ -1,6 +1,6 @@
 """Every simulation method against the expected fields, outside the workflow (any scene).
 
-For moulds 0..n-1 of `generate_mould(seed, id, scene.box)`: R replicas with the dataset's solver
+For moulds 0..n-1 of `generate_mould(seed, id, scene)`: R replicas with the dataset's solver
 (the reference ensemble, condor.data.seeds.replica_seed), every method of condor.studies.sweep
 (long anneal, short anneals, minimiser, converged hybrid) once per mould, then
 condor.studies.accuracy: field error against the expected fields with the noise removed,

@@ -12,8 +12,10 @@ from pathlib import Path
 import numpy as np
 
 from condor import plots
-from condor.data.drawings import load_placement, training_domain_check
-from condor.data.moulds import MouldParams, input_channels, save_json
+from condor.moulds.read import load_placement
+from condor.moulds.domain import training_domain_check
+from condor.moulds.paper import MouldParams
+from condor.moulds.mould import input_channels, save_json
 from condor.model.scenes import PRESETS, Scene, get_scene, same_length
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
 from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
@@ -113,7 +115,7 @@ def _user_mould_args(parser: argparse.ArgumentParser) -> None:
 
 
 def _load_mould(args, scene, path=None):
-    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings),
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.moulds.read),
     with its placement (how its units were read, its scale factor) printed."""
     return _load_placement(args, scene, path).mould
 

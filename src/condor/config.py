@@ -28,7 +28,7 @@ from condor.model.anneal import T_INIT, T_RATIO
 from condor.model.energy import DELTA
 from condor.data.fields import FIELD_NAMES, window_width
 from condor.model.lattice import SHELL_KBAR, fcc_layers
-from condor.data.moulds import MouldParams, is_tether_free
+from condor.moulds.paper import MouldParams, is_tether_free
 from condor.model.scenes import Scene, get_scene
 from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.model.minimise import FTOL

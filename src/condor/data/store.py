@@ -56,7 +56,7 @@ from zarr.codecs import Crc32cCodec, ZstdCodec
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
 from condor.data.inputs import LATTICE_CHANNELS
-from condor.data.moulds import MouldParams
+from condor.moulds.paper import MouldParams
 
 FORMAT = "condor-dataset"
 FORMAT_VERSION = 5  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y

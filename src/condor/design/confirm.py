@@ -26,7 +26,7 @@ from tqdm.auto import tqdm
 
 from condor.measures.estimators import BOOTSTRAP_SAMPLES, bootstrap_interval, pearson_r
 from condor.data.fields import cell_fields, normalise
-from condor.data.moulds import Mould, input_channels
+from condor.moulds.mould import Mould, input_channels
 from condor.data.seeds import replica_seed
 from condor.model.scenes import same_length
 from condor.model.simulate import simulate

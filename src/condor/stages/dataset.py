@@ -32,7 +32,8 @@ from condor.data import inputs as model_inputs
 from condor import plots
 from condor.config import Config
 from condor.data.fields import cell_fields
-from condor.data.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
+from condor.moulds.mould import Mould, input_channels, check_mould
+from condor.moulds.paper import generate_mould, regime_table
 from condor.progress import progress
 from condor.model.scenes import Scene, same_length
 from condor.data.seeds import replica_seed
@@ -78,9 +79,8 @@ def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
 def make_mould(scene: Scene, seed: int, mould_id: int, params=None) -> Mould:
     """Mould `mould_id` of dataset `seed` in `scene`, validated (never write invalid geometry)."""
     kwargs = {} if params is None else {"params": params}
-    mould = generate_mould(seed, mould_id, box=scene.box, area_fraction=scene.area_fraction,
-                           max_extent=scene.max_extent, **kwargs)
-    validate_mould(mould)
+    mould = generate_mould(seed, mould_id, scene, **kwargs)
+    check_mould(mould)
     return mould
 
 

@@ -35,11 +35,11 @@ from condor.design import (confirm, constrained_space, dataset_baseline, default
                            design_table,
                            parse_objective, predict_designs, search, simulate_designs)
 from condor.design.search import calibrated_statistic
-from condor.data.drawings import write_dxf, write_svg
+from condor.moulds.write import write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
 from condor.model.lattice import build_lattice
-from condor.data.moulds import save_json
+from condor.moulds.mould import save_json
 from condor.model.scenes import Scene, same_length
 from condor.data.store import CHANNELS, open_store, quiet_zarr
 from condor.surrogate.predict import Predictor
@@ -150,7 +150,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     numbers have one home, the workflow config's `design:` defaults (the packaged schema),
     which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
-    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored
+    search runs. `your_moulds`: condor.moulds.mould.Mould objects (a user's own designs) scored
     the same way, predicted and simulated, into your_moulds.csv: the designs to beat, and drawn
     first in figures/designs.png. `keep`: "footprint" and/or "posts" of the first of them
     constrain the search (condor.design.constrained_space). `say`: called with one line as

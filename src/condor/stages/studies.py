@@ -24,7 +24,7 @@ import torch
 from condor import plots
 from condor.config import Config
 from condor.studies.stability import run_cases
-from condor.data.moulds import input_channels
+from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
 from condor.stages.dataset import load_moulds
 from condor.data.store import open_store

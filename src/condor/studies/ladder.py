@@ -26,7 +26,7 @@ def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, lo
     """One row per (mould, rung) plus the dataset solver's own row per mould: runs, energy per
     cell (median, min, max), `distance_to_dataset` (RMS over normalised fields, noise removed),
     `spread` (one simulation's RMS scatter within the rung), and annealer diagnostics.
-    `moulds`: condor.data.moulds.Mould objects of ensemble.moulds (same order)."""
+    `moulds`: condor.moulds.mould.Mould objects of ensemble.moulds (same order)."""
     truth = ensemble.normalised
     rows = []
     for m, mould in enumerate(moulds):

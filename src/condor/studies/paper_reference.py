@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from condor.data.fields import cell_fields, normalise
-from condor.data.moulds import generate_mould
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import Scene
 from condor.data.seeds import study_seed
 from condor.model.simulate import SimResult
@@ -47,8 +47,7 @@ def run_path(cache, scene: Scene, dataset_seed: int, mould_id: int, budget: floa
 
 def mould_of(scene: Scene, dataset_seed: int, mould_id: int):
     """The dataset's mould `mould_id` in `scene` (as condor.stages.dataset.make_mould)."""
-    return generate_mould(dataset_seed, mould_id, box=scene.box,
-                          area_fraction=scene.area_fraction, max_extent=scene.max_extent)
+    return generate_mould(dataset_seed, mould_id, scene)
 
 
 def run_reference(cache, scene: Scene, dataset_seed: int, mould_id: int, budget: float, k: int,

@@ -370,7 +370,7 @@ class Predictor:
         return "lattice" in INPUT_VARIABLES[self.inputs_kind]
 
     def lattice_of(self, mould) -> np.ndarray:
-        """The exact lattice channels (2, H, W) of a condor.data.moulds.Mould on the training grid."""
+        """The exact lattice channels (2, H, W) of a condor.moulds.mould.Mould on the training grid."""
         from condor.data.inputs import lattice_channels
 
         if self.box is None or self.depth is None:
@@ -389,7 +389,7 @@ class Predictor:
         return estimate_lattice_channels(inputs, self.pixel_size, self.depth, self.sigma)
 
     def mould_arguments(self, moulds) -> dict:
-        """Keyword arguments of __call__ for condor.data.moulds.Mould objects beyond their masks:
+        """Keyword arguments of __call__ for condor.moulds.mould.Mould objects beyond their masks:
         each mould's exact N_c and, for a lattice checkpoint, its lattice channels."""
         from condor.data.inputs import channels_of_sites
         from condor.model.lattice import lattice_sites
@@ -498,7 +498,7 @@ def _png_channels(path) -> np.ndarray:
 def read_mould_inputs(path, pixels: int, box: float | None = None) -> np.ndarray:
     """Input channels (2, pixels, pixels) uint8 given as a picture of them: a (2, H, W) 0/1
     .npy array (mould, tether) or a two-channel .png (see _png_channels), at the checkpoint's
-    grid. (A mould itself, as JSON, SVG or DXF: condor.data.drawings.load_mould.)"""
+    grid. (A mould itself, as JSON, SVG or DXF: condor.moulds.read.load_mould.)"""
     path = Path(path)
     suffix = path.suffix.lower()
     if suffix == ".npy":
