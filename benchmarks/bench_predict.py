@@ -97,7 +97,7 @@ def main() -> None:
     from condor.cli import _checkpoint_scene
     from condor.moulds.paper import MouldParams
     from condor.moulds.mould import input_channels
-    from condor.stages.dataset import make_mould
+    from condor.stages.build import make_mould
     from condor.surrogate.samples import INPUT_VARIABLES, apply_symmetry
     from condor.surrogate.predict import (PREDICT_BATCH, Predictor, _inference_model, _network,
                                           bfloat16_is_native, run_model)

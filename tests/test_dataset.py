@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import condor
-from condor.data import reader as dataset
+from condor.data import dataset
 from condor.data.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
 
 PIXELS = 8
@@ -118,7 +118,7 @@ def test_hardware_names_the_cpu_target_numba_compiles_for():
     # machines of one model name apart
     from llvmlite.binding import get_host_cpu_name
 
-    from condor.stages.dataset import hardware
+    from condor.stages.build import hardware
 
     record = hardware()
     assert f"({get_host_cpu_name()})" in record
@@ -244,7 +244,7 @@ def test_dir_condor_lists_what_it_offers():
 def mould_store(tmp_path_factory):
     """A tiny store whose moulds the mould stage wrote (no simulation): (config, path)."""
     from condor.config import Config
-    from condor.stages.dataset import make_moulds
+    from condor.stages.build import make_moulds
 
     config = Config.from_dict({"scene": "tiny", "seed": 11, "n_moulds": 6, "split": {"test": 2}})
     folder = tmp_path_factory.mktemp("geometry")

@@ -15,7 +15,7 @@ import numpy as np
 import pytest
 import xarray as xr
 
-from condor.data.store import check_store
+from condor.data.store_check import check_store
 from conftest import condor_cli
 from test_cli_surrogate import _without_write_permission
 from test_workflow import REPO, TINY, run, snakemake_args

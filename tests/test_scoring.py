@@ -9,7 +9,7 @@ import pytest
 import xarray as xr
 
 from condor.studies import scoring
-from condor.data.reader import usable_samples
+from condor.data.dataset import usable_samples
 from condor.studies.reference import Ensemble
 
 

@@ -9,30 +9,12 @@ import shapely
 import xarray as xr
 import zarr
 
-from condor.data.store import (
-    FIELD_NAMES,
-    FORMAT_VERSION,
-    MAX_TETHERS,
-    MAX_VERTICES,
-    StoreError,
-    StoreSpec,
-    assign_splits,
-    check_store,
-    check_metadata,
-    chunk_file,
-    create_store,
-    inputs_whole,
-    open_store,
-    outline_polygon,
-    restore_layout,
-    sample_index,
-    sample_layout,
-    scan_store,
-    set_aside,
-    write_expected,
-    write_inputs,
-    write_sample,
-)
+from condor.data.store import (FIELD_NAMES, FORMAT_VERSION, MAX_TETHERS, MAX_VERTICES, StoreError,
+                               StoreSpec, assign_splits, create_store, open_store, outline_polygon,
+                               sample_index, sample_layout, write_expected, write_inputs,
+                               write_sample)
+from condor.data.store_check import (check_store, check_metadata, chunk_file, inputs_whole,
+                                     restore_layout, scan_store, set_aside)
 
 PIXELS = 8
 MOULD_META = {"seed": 1, "symmetry": "cyclic", "order": 3, "removal": "none", "n_tethers": 6}

@@ -13,7 +13,8 @@ from condor.model.lattice import build_lattice
 from condor.moulds.mould import Mould
 from condor.model.scenes import get_scene
 from condor.model.simulate import simulate_lattice
-from condor.data.store import StoreSpec, create_store, open_store, sample_index, write_inputs, write_sample
+from condor.data.store import (StoreSpec, create_store, open_store, sample_index, write_inputs,
+                               write_sample)
 from condor.studies import accuracy, reference, sweep
 from condor.studies.convergence import convergence
 from condor.studies.ladder import ladder

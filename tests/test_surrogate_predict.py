@@ -10,7 +10,7 @@ import torch
 from condor.moulds.paper import MouldParams
 from condor.moulds.mould import input_channels
 from condor.model.scenes import get_scene
-from condor.stages.dataset import make_mould
+from condor.stages.build import make_mould
 from condor.surrogate.checkpoint import save_checkpoint
 from condor.surrogate.models import TFBatchNorm2d, UNetGenerator, prediction_mode
 from condor.surrogate.physics import PhysicsHead

@@ -110,8 +110,8 @@ def test_end_to_end_tiny(tiny_run, tiny_copy):
     np.testing.assert_allclose(ds["fields_mean"].values[0],
                                ds["fields"].values[samples].astype(float).mean(axis=0), rtol=1e-5)
     # each mould's geometry in the store, in every replica, is the one its batch's JSON holds
-    from condor.data.reader import mould_geometry
-    from condor.stages.dataset import load_moulds
+    from condor.data.dataset import mould_geometry
+    from condor.stages.build import load_moulds
 
     batches = sorted((tiny_run / "results" / "moulds").glob("batch_*.json"))
     moulds = [m for path in batches for m in load_moulds(path)]

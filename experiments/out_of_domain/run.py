@@ -74,7 +74,7 @@ from condor.measures import estimators as est  # noqa: E402
 from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.model.scenes import get_scene, same_length  # noqa: E402
 from condor.model.simulate import SimResult, warm_up  # noqa: E402
-from condor.stages.dataset import rasterise_result, simulate_mould  # noqa: E402
+from condor.stages.build import rasterise_result, simulate_mould  # noqa: E402
 from condor.surrogate.answer import (SPREAD_STATISTICS, domain_table, mould_summary,  # noqa: E402
                                      statistics)
 from condor.surrogate.calibration import interval_coverage, tissue_pixels  # noqa: E402

@@ -39,7 +39,7 @@ from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.data.seeds import replica_seed
 from condor.model.simulate import simulate
-from condor.stages.dataset import rasterise_result
+from condor.stages.build import rasterise_result
 
 
 def parse_solver(spec: str) -> tuple[str, float | None, float | None]:

@@ -27,7 +27,7 @@ from condor.data.fields import cell_fields  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
-from condor.stages.dataset import make_mould, simulate_mould  # noqa: E402
+from condor.stages.build import make_mould, simulate_mould  # noqa: E402
 from condor.studies import accuracy, reference, sweep  # noqa: E402
 
 OUT = Path("results/benchmarks")

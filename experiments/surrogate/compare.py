@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from condor.config import Config
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train

@@ -32,9 +32,9 @@ from study import (
 )
 
 from condor.data import inputs as model_inputs
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.moulds.mould import input_channels
-from condor.stages.dataset import load_moulds
+from condor.stages.build import load_moulds
 from condor.studies.scoring import (
     field_errors,
     paired_rows,

@@ -18,8 +18,9 @@ from condor.moulds.paper import MouldParams
 from condor.moulds.mould import input_channels, save_json
 from condor.model.scenes import PRESETS, Scene, get_scene, same_length
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
-from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.data.store import FORMAT, check_metadata, scan_store, set_aside
+from condor.stages.build import make_mould, rasterise_result, simulate_mould
+from condor.data.store import FORMAT
+from condor.data.store_check import check_metadata, scan_store, set_aside
 
 
 class CLIError(Exception):

@@ -184,7 +184,7 @@ def write_report(path, title: str, sections: list[Section], meta: str = "") -> P
 
 # Every file the workflow report reads, by the key the report rule names it with.
 REPORT_INPUTS = {
-    "dataset_summary": "per-sample table of the finished store (CSV, condor.stages.dataset)",
+    "dataset_summary": "per-sample table of the finished store (CSV, condor.stages.build)",
     "regimes": "mould regime and removal frequencies beside the paper's table (CSV)",
     "gallery": "mould gallery (PNG)",
     "samples": "example samples: mould and 8 fields (PNG)",

@@ -26,7 +26,7 @@ from condor.config import Config
 from condor.studies.stability import run_cases
 from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
-from condor.stages.dataset import load_moulds
+from condor.stages.build import load_moulds
 from condor.data.store import open_store
 from condor.studies import accuracy as accuracy_study
 from condor.studies.convergence import convergence as convergence_study

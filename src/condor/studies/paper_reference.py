@@ -46,7 +46,7 @@ def run_path(cache, scene: Scene, dataset_seed: int, mould_id: int, budget: floa
 
 
 def mould_of(scene: Scene, dataset_seed: int, mould_id: int):
-    """The dataset's mould `mould_id` in `scene` (as condor.stages.dataset.make_mould)."""
+    """The dataset's mould `mould_id` in `scene` (as condor.stages.build.make_mould)."""
     return generate_mould(dataset_seed, mould_id, scene)
 
 

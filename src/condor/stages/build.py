@@ -38,8 +38,9 @@ from condor.progress import progress
 from condor.model.scenes import Scene, same_length
 from condor.data.seeds import replica_seed
 from condor.model.simulate import SimResult, simulate, warm_up
-from condor.data.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
-                          sample_index, write_expected, write_inputs, write_sample)
+from condor.data.store_check import check_store, inputs_whole, restore_layout
+from condor.data.store import (create_store, open_store, sample_index, write_expected,
+                               write_inputs, write_sample)
 
 log = logging.getLogger("condor")
 

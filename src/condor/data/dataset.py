@@ -31,8 +31,9 @@ import xarray as xr
 
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
-from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, check_store,
-                               open_store, outline_polygon)
+from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store,
+                               outline_polygon)
+from condor.data.store_check import check_store
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
 ITEM_SHAPES = "inputs (2, H, W) float32 0/1; fields (8, H, W) float32"
