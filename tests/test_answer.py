@@ -237,7 +237,7 @@ def test_a_network_is_known_by_its_weights_not_its_file(tmp_path):
     import torch
 
     from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint, weights_sha256
-    from condor.surrogate.models import UNetConfig, UNetGenerator
+    from condor.surrogate.networks import UNetConfig, UNetGenerator
 
     net = UNetGenerator(UNetConfig(size=16, base=4, depth=3), torch.Generator().manual_seed(0))
     state = {"generator": net.state_dict(), "history": [{"seconds": 1.0}]}

@@ -20,7 +20,7 @@ from condor import cli
 from condor.moulds.mould import input_channels, load_json
 from condor.data.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
-from condor.surrogate.models import PREDICTION_MODES
+from condor.surrogate.networks import PREDICTION_MODES
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
 
@@ -61,10 +61,7 @@ def run_main(argv):
 
 
 def test_parser_choices_agree_with_library():
-    import importlib
-
-    predict_module = importlib.import_module("condor.surrogate.predict")  # the module, not
-    # condor.surrogate's function of that name
+    from condor.surrogate import inference as predict_module
 
     assert cli.PREDICTION_MODES == PREDICTION_MODES
     assert (cli.AUTO_PRECISION, cli.PRECISIONS, cli.DEFAULT_PRECISION) == (
@@ -75,7 +72,7 @@ def test_parser_choices_agree_with_library():
 def test_train_writes_checkpoint(trained):
     _, checkpoint = trained
     state = load_checkpoint(checkpoint)
-    assert state["epoch"] == 2 and state["config"]["model"] == "unet_l1"
+    assert state["epoch"] == 2 and state["config"]["network"] == "unet_l1"
     assert state["generator_config"]["size"] == SIZE and state["generator_config"]["base"] == 8
     assert state["data"]["pixel_size"] == pytest.approx(BOX / SIZE)
     assert state["data"]["n_train"] == 12  # 6 of every 8 samples are "train"

@@ -151,13 +151,13 @@ def test_simulate_designs_scores_the_replica_mean(analytic_search):
 def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     """Train a U-Net for one epoch on the synthetic set (the tiny scene's box and grid), search
     with the real Predictor, confirm by simulation, compare with a baseline."""
-    from condor.surrogate.models import UNetConfig
+    from condor.surrogate.networks import UNetConfig
     from condor.surrogate.predict import Predictor
     from condor.surrogate.synthetic import synthetic_dataset
     from condor.surrogate.train import TrainConfig, train
 
     checkpoint = tmp_path / "tiny.pt"
-    cfg = TrainConfig(model="unet_l1", unet=UNetConfig.for_size(32, base=8), epochs=1,
+    cfg = TrainConfig(network="unet_l1", unet=UNetConfig.for_size(32, base=8), epochs=1,
                       batch_size=4, lr=2e-3, max_val_samples=1)
     train(synthetic_dataset(8, 32), cfg, checkpoint, log=lambda *a: None)
     predictor = Predictor(checkpoint)

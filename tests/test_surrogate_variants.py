@@ -9,7 +9,7 @@ import torch
 from condor.config import Config, ConfigError
 from condor.stages.surrogate import evaluate, evaluate_baselines, summarise, train, working_checkpoint
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.models import UNetConfig
+from condor.surrogate.networks import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig
 from condor.surrogate.variants import PRESETS, UNET_KEYS, resolve, train_config, workflow_variants
@@ -23,7 +23,7 @@ def test_train_config_maps_flat_settings():
     cfg = train_config({"model": "unet_gan", "base": 16, "depth": 3, "epochs": 7, "lr": 1e-3,
                         "lam": 50, "batch_size": None}, 64)
     assert cfg.unet == UNetConfig(size=64, base=16, depth=3, max_width=256)
-    assert (cfg.model, cfg.epochs, cfg.lr, cfg.lam, cfg.batch_size) == ("unet_gan", 7, 1e-3, 50, 1)
+    assert (cfg.network, cfg.epochs, cfg.lr, cfg.lam, cfg.batch_size) == ("unet_gan", 7, 1e-3, 50, 1)
     assert train_config({"model": "unet_l1"}, 32).unet == UNetConfig.for_size(32)
     assert train_config({"model": "pix2pix"}, 64).networks(64)[0] == UNetConfig.paper()
 

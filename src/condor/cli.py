@@ -280,7 +280,9 @@ def cmd_predict(args) -> None:
                                          format_summary, mould_summary, spread_calibration)
     from condor.surrogate.calibration import tissue_pixels
     from condor.surrogate.checkpoint import weights_sha256
-    from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
+    from condor.surrogate.predict import Predictor
+    from condor.surrogate.pictures import read_mould_inputs
+    from condor.surrogate.prediction_zarr import write_prediction
 
     out = Path(args.out)
     if out.suffix.lower() not in (".zarr", ".png"):
