@@ -18,7 +18,8 @@ from condor.moulds.paper import MouldParams
 from condor.moulds.mould import input_channels, save_json
 from condor.model.scenes import PRESETS, Scene, get_scene, same_length
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
-from condor.stages.build import make_mould, rasterise_result, simulate_mould
+from condor.moulds.sources import make_mould
+from condor.stages.build import rasterise_result, simulate_mould
 from condor.data.store import FORMAT
 from condor.data.store_check import check_metadata, scan_store, set_aside
 

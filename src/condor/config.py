@@ -28,12 +28,17 @@ from condor.model.anneal import T_INIT, T_RATIO
 from condor.model.energy import DELTA
 from condor.data.fields import FIELD_NAMES, window_width
 from condor.model.lattice import SHELL_KBAR, fcc_layers
-from condor.moulds.paper import MouldParams, is_tether_free
+from condor.moulds.lab import FAMILY_NAMES, check_area_range
+from condor.moulds.mould import PAPER
+from condor.moulds.paper import MouldParams
+from condor.moulds.sources import assign_sources, make_mould, tether_free
 from condor.model.scenes import Scene, get_scene
 from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.reference import MIN_REPLICAS
+
+TEST_SETS = ("paper", "lab")  # the test moulds of the generator, and of the lab families
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
 
@@ -185,6 +190,25 @@ class Config:
         return assign_splits(self.n_moulds, self.split["test"], self.split["val_fraction"],
                              self.seed, pinned=reference_moulds(self.scene.name, self.seed))
 
+    def lab_families(self) -> tuple[str, ...]:
+        """The lab families the config draws from (`moulds.lab_families`; null: all)."""
+        chosen = self.moulds["lab_families"]
+        return tuple(FAMILY_NAMES if chosen is None else chosen)
+
+    def sources(self) -> tuple[str, ...]:
+        """The source of every mould: PAPER (the generator) or a lab family
+        (`condor.moulds.sources.assign_sources`); the moulds with a paper reference are the
+        generator's."""
+        from condor.studies.paper_reference import reference_moulds
+        return assign_sources(self.splits(), self.moulds["lab_fraction"],
+                              self.split["lab_test"], self.lab_families(), self.seed,
+                              pinned=reference_moulds(self.scene.name, self.seed))
+
+    def make_mould(self, mould_id: int):
+        """Mould `mould_id` of this dataset, from its source."""
+        return make_mould(self.scene, self.seed, mould_id, self.sources()[mould_id],
+                          self.mould_params(), self.moulds["lab_area"])
+
     def replicas(self) -> tuple[int, ...]:
         """Simulations per mould, from its split; a tether-free test mould takes
         `test_tether_free` when set (its orientation scatters far more: docs/surrogate.md,
@@ -193,17 +217,24 @@ class Config:
         free = counts.get("test_tether_free")
         params = self.mould_params()
         return tuple(int(free) if s == "test" and free is not None
-                     and is_tether_free(self.seed, i, params) else int(counts[s])
-                     for i, s in enumerate(self.splits()))
+                     and tether_free(self.seed, i, source, params) else int(counts[s])
+                     for i, (s, source) in enumerate(zip(self.splits(), self.sources())))
 
     def batches(self) -> list[range]:
         """Mould ids per job: consecutive runs of `batch_size`."""
         n, size = self.n_moulds, self.batch_size
         return [range(start, min(start + size, n)) for start in range(0, n, size)]
 
-    def test_moulds(self) -> list[int]:
-        """Mould ids of the test split, in id order."""
-        return [i for i, s in enumerate(self.splits()) if s == "test"]
+    def test_moulds(self, source: str | None = None) -> list[int]:
+        """Mould ids of the test split, in id order; `source` "paper": the generator's only
+        (the paper test set), "lab": the lab families' only (the lab test set)."""
+        test = [i for i, s in enumerate(self.splits()) if s == "test"]
+        if source is None:
+            return test
+        if source not in TEST_SETS:
+            raise ValueError(f"unknown test set {source!r}; choose one of {TEST_SETS}")
+        sources = self.sources()
+        return [i for i in test if (sources[i] == PAPER) == (source == "paper")]
 
     def solver(self) -> tuple[str, float]:
         """The simulation's solver and budget, None resolved to the simulator's defaults."""
@@ -217,7 +248,9 @@ class Config:
         return {"scene": self.scene.to_dict(), "seed": self.seed, "n_moulds": self.n_moulds,
                 "batch_size": self.batch_size,
                 "no_tether_fraction": self.mould_params().no_tether_fraction,
-                "split": _plain(self.split), "solver": self.solver()[0],
+                "split": _plain(self.split), "lab_fraction": self.moulds["lab_fraction"],
+                "lab_families": list(self.lab_families()),
+                "lab_area": list(self.moulds["lab_area"]), "solver": self.solver()[0],
                 "budget": self.solver()[1], "ftol": FTOL,
                 "replicas": _plain(self.simulation["replicas"])}
 
@@ -249,6 +282,20 @@ class Config:
             self.mould_params()
         except ValueError as err:
             raise ConfigError(f"config key moulds: {err}") from err
+        try:
+            self.sources()
+        except ValueError as err:
+            raise ConfigError(f"config key split/lab_test: {err}") from err
+        n_paper = len(self.test_moulds("paper"))
+        if self.report["moulds"] > n_paper:
+            raise ConfigError(
+                f"config key report/moulds: {self.report['moulds']} test moulds asked of the "
+                f"accuracy study, but the paper test set holds {n_paper} (split/test "
+                f"{self.split['test']} less split/lab_test {self.split['lab_test']})")
+        try:
+            check_area_range(self.moulds["lab_area"], self.lab_families(), self.scene.max_extent)
+        except ValueError as err:
+            raise ConfigError(f"config key moulds/lab_area: {err}") from err
         counts = self.simulation["replicas"]
         for name in ("test", "test_tether_free"):
             if counts[name] is not None and counts[name] < MIN_REPLICAS:

@@ -42,6 +42,10 @@ rule accuracy:
         statistics_test=f"{EVALUATION}/statistics_test.csv",
         accuracy_test=f"{EVALUATION}/accuracy_test.csv",
         calibration_test=f"{EVALUATION}/calibration_test.csv",
+        accuracy_lab=f"{EVALUATION}/accuracy_lab.csv",
+        statistics_lab=f"{EVALUATION}/statistics_lab.csv",
+        calibration_lab=f"{EVALUATION}/calibration_lab.csv",
+        families_lab=f"{EVALUATION}/families_lab.csv",
         chart=report(
             f"{EVALUATION}/figures/cost_accuracy.png",
             caption="../report/cost_accuracy.rst",

@@ -7,4 +7,6 @@ accuracy(start_job(snakemake), snakemake.params.store, snakemake.input.sweeps,
          snakemake.output.accuracy, snakemake.output.statistics, snakemake.output.calibration,
          snakemake.output.chart, snakemake.output.spread_chart,
          snakemake.output.statistics_test, snakemake.output.calibration_test,
-         snakemake.output.accuracy_test)
+         snakemake.output.accuracy_test,
+         {key: snakemake.output[f"{key}_lab"]
+          for key in ("accuracy", "statistics", "calibration", "families")})

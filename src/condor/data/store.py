@@ -51,11 +51,13 @@ from condor.data.inputs import LATTICE_CHANNELS
 from condor.moulds.paper import MouldParams
 
 FORMAT = "condor-dataset"
-FORMAT_VERSION = 5  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y
+FORMAT_VERSION = 6  # 3: the lattice channels (`lattice`) beside the masks; 4: x and y
 # coordinates (pixel centres, l0) and CF attributes (units, long_name) on every array; 5: each
-# mould's geometry (GEOMETRY_ARRAYS: its outline and its tethers, l0)
+# mould's geometry (GEOMETRY_ARRAYS: its outline and its tethers, l0); 6: each mould's family
+# (the paper's generator or a lab family)
 FORMAT_CHANGES = {3: "the lattice channels", 4: "x and y coordinates and CF attributes",
-                  5: "the mould geometry (outline_x, outline_y, tether_x, tether_y, tether_r)"}
+                  5: "the mould geometry (outline_x, outline_y, tether_x, tether_y, tether_r)",
+                  6: "each mould's family (paper, or a lab family)"}
 CHANNELS = ("mould", "tether")
 SPLITS = ("train", "val", "test")
 
@@ -66,6 +68,7 @@ SAMPLE_VARIABLES: dict[str, tuple[object, object]] = {
     "mould": ("int64", -1),
     "replica": ("int16", -1),
     "seed": ("int64", -1),
+    "family": ("<U24", ""),
     "symmetry": ("<U24", ""),
     "order": ("int16", -1),
     "removal": ("<U24", ""),
@@ -82,7 +85,7 @@ SAMPLE_VARIABLES: dict[str, tuple[object, object]] = {
     "status": (f"<U{STATUS_WIDTH}", ""),
     "split": ("<U8", ""),
 }
-MOULD_VARIABLES = ("seed", "symmetry", "order", "removal", "n_tethers")
+MOULD_VARIABLES = ("seed", "family", "symmetry", "order", "removal", "n_tethers")
 # The mould's geometry, per sample like its metadata (every replica carries it), in l0 in the
 # frame of the x and y coordinates: its outline (the exterior ring, closed: its first vertex
 # repeated last; then each hole's ring, closed, after one NaN) in outline_x/outline_y along
@@ -129,6 +132,8 @@ VARIABLE_ATTRS = {
     "n_replicas_ok": {"units": "1", "long_name": "ok replicas of the mould"},
     "mould": {"long_name": "mould id"}, "replica": {"long_name": "replica number (seed index)"},
     "seed": {"long_name": "the generator's seed of the mould"},
+    "family": {"long_name": "the mould's source: 'paper' (the paper's generator) or a lab "
+               "family (condor.moulds.lab)"},
     "symmetry": {"long_name": "the generator's symmetry regime"},
     "order": {"units": "1", "long_name": "rotation order of the mould's symmetry"},
     "removal": {"long_name": "the generator's tether removal rule"},

@@ -32,7 +32,8 @@ SYMMETRIES: tuple[str, ...] = (
     "cyclic",
     "dihedral",
 )
-USER = "user"  # symmetry and removal label of a mould the generator did not make
+USER = "user"  # symmetry, removal and family label of a mould no source of condor made
+PAPER = "paper"  # the family of the paper's generated moulds (condor.moulds.paper)
 MIN_WIDTH_L0 = 1.0  # a user mould must be at least one cell (l0) wide everywhere it joins
 
 
@@ -74,6 +75,12 @@ class Mould:
     concave_rounded: bool = False
     outline: str | None = None  # initial shape: "convex_hull" or "simple_polygon"; None
     # for a user mould
+    family: str | None = None  # its source's family: PAPER (the generator), a lab family
+    # (condor.moulds.lab.FAMILY_NAMES) or USER; None: PAPER for a generated mould, else USER
+
+    def __post_init__(self):
+        if self.family is None:
+            self.family = PAPER if self.symmetry in SYMMETRIES else USER
 
     @property
     def n_tethers(self) -> int:
@@ -114,6 +121,7 @@ class Mould:
             "convex_rounded": bool(self.convex_rounded),
             "concave_rounded": bool(self.concave_rounded),
             "outline": self.outline,
+            "family": self.family,
         }
 
     @classmethod

@@ -36,6 +36,10 @@ REPORT_INPUTS = {
     "statistics_test": "statistics of the surrogates and baselines on every test mould (CSV)",
     "accuracy_test": "field error of the surrogates and baselines on every test mould (CSV)",
     "calibration_test": "each surrogate's spread map on every test mould (CSV)",
+    "accuracy_lab": "field error of the surrogates and baselines on the lab test set (CSV)",
+    "statistics_lab": "statistics of the surrogates and baselines on the lab test set (CSV)",
+    "calibration_lab": "each surrogate's spread map on the lab test set (CSV)",
+    "families_lab": "each surrogate family by family on the lab test set (CSV)",
     "spread_chart": "the reproducibility map beside the replicas' scatter (PNG)",
     "ladder": "the anneal ladder (CSV)",
     "convergence": "scene convergence study (CSV)",
@@ -113,7 +117,8 @@ def _summary_section(config, inp) -> Section:
         calibration = (_csv(inp, "calibration_test") if Path(inp["calibration_test"]).stat()
                        .st_size > 1 else pd.DataFrame())  # empty: no surrogate with a spread
         numbers, words = headline(_csv(inp, "accuracy_test"), every, calibration,
-                                  _csv(inp, "fidelity"), first)
+                                  _csv(inp, "fidelity"), first, _csv(inp, "accuracy_lab"),
+                                  _csv(inp, "families_lab"))
         blocks += [_headline_table(numbers), verdict(words)]
     blocks += [paragraph(_dataset_line(config, summary)), *_failures(summary)]
     if first is not None:
@@ -349,6 +354,36 @@ def _dataset_section(inp, store) -> Section:
     ])
 
 
+def _lab_section(config, inp) -> Section | None:
+    """The lab test set: moulds of the lab families (strips, dog-bones, rings, ...) the run
+    trained on other moulds of, scored as the paper test set is, and family by family."""
+    errors = _csv(inp, "accuracy_lab")
+    if "method" not in errors or errors.empty:
+        return None
+    families = _csv(inp, "families_lab")
+    statistics = _csv(inp, "statistics_lab")
+    columns = ["method", "family", "cpu_s_per_mould", "field_error", "field_error_lo",
+               "field_error_hi", "field_error_plain", "n_moulds"]
+    blocks = [paragraph(
+        "The lab test set: moulds of the lab families (condor.moulds.lab: "
+        f"{', '.join(config.lab_families())}), drawn as the training's lab moulds are but never "
+        "trained on, scored against their own replicas' expected fields as the paper test set "
+        "is. How the surrogate does on a family it never saw at all is measured apart "
+        "(experiments/generalisation, docs/data/generalisation.csv)."),
+        table(errors[columns], "Surrogates and baselines on the lab test set: field error "
+              "against the expected fields [95% interval] beside one simulation's.", digits=3)]
+    if not families.empty:
+        blocks.append(table(families, "Family by family: the field error [95% interval] against "
+                            "the family's own noise ceiling (one simulation), and the mean "
+                            "tension's bias (median of predicted / expected - 1) [95%].",
+                            digits=3))
+    blocks.append(folded("Whole-mould statistics on the lab test set", [
+        table(method_statistics(statistics, m), f"{m} on the lab test set: r against the "
+              "expected statistics (noise removed), ceiling, bias, n.")
+        for m in dict.fromkeys(statistics["method"])]))
+    return Section("lab", "Lab moulds", blocks)
+
+
 def condor_report(config, inputs, store, out_html) -> Path:
     """Write the workflow report for `config` from `inputs` (a mapping with every key of
     REPORT_INPUTS) and the dataset `store`, to `out_html` (one self-contained file)."""
@@ -356,7 +391,9 @@ def condor_report(config, inputs, store, out_html) -> Path:
     missing = [k for k in REPORT_INPUTS if k not in inputs]
     if missing:
         raise ReportError(f"report inputs lack {missing}")
+    lab = _lab_section(config, inputs)
     sections = [_summary_section(config, inputs), _accuracy_section(inputs),
+                *([lab] if lab is not None else []),
                 _simulator_section(inputs), _surrogate_section(config, inputs),
                 _design_section(config, inputs), _dataset_section(inputs, store)]
     stamp = datetime.datetime.now().isoformat(timespec="seconds")

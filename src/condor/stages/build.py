@@ -32,8 +32,8 @@ from condor.data import inputs as model_inputs
 from condor import plots
 from condor.config import Config
 from condor.data.fields import cell_fields
-from condor.moulds.mould import Mould, input_channels, check_mould
-from condor.moulds.paper import generate_mould, regime_table
+from condor.moulds.mould import PAPER, Mould, input_channels
+from condor.moulds.paper import regime_table
 from condor.progress import progress
 from condor.model.scenes import Scene, same_length
 from condor.data.seeds import replica_seed
@@ -77,25 +77,17 @@ def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
 
 # --- 2. moulds ----------------------------------------------------------------------------------
 
-def make_mould(scene: Scene, seed: int, mould_id: int, params=None) -> Mould:
-    """Mould `mould_id` of dataset `seed` in `scene`, validated (never write invalid geometry)."""
-    kwargs = {} if params is None else {"params": params}
-    mould = generate_mould(seed, mould_id, scene, **kwargs)
-    check_mould(mould)
-    return mould
-
-
 def mould_metadata(mould: Mould) -> dict:
-    return {"seed": mould.seed, "symmetry": mould.symmetry, "order": mould.order,
-            "removal": mould.removal, "n_tethers": mould.n_tethers}
+    return {"seed": mould.seed, "family": mould.family, "symmetry": mould.symmetry,
+            "order": mould.order, "removal": mould.removal, "n_tethers": mould.n_tethers}
 
 
 def make_moulds(config: Config, ids, out_json: str | Path, store: str | Path | None = None) -> list:
-    """Generate moulds `ids`; write their geometry to `out_json` and, when `store` is given,
-    their input channels (masks and lattice channels, condor.data.inputs) and metadata into the
+    """Draw moulds `ids`, each from its source (the generator or a lab family:
+    `Config.make_mould`); write their geometry to `out_json` and, when `store` is given, their
+    input channels (masks and lattice channels, condor.data.inputs) and metadata into the
     store (every replica)."""
-    params = config.mould_params()
-    moulds = [make_mould(config.scene, config.seed, i, params) for i in ids]
+    moulds = [config.make_mould(i) for i in ids]
     write_json_atomic(out_json, [m.to_dict() for m in moulds])
     if store is not None:
         for mould in moulds:
@@ -267,7 +259,7 @@ def mould_gallery(moulds_jsons, n: int, out_png: str | Path, out_csv: str | Path
     """The first `n` moulds drawn, and the regime/removal frequencies of all of them."""
     moulds = [m for path in moulds_jsons for m in load_moulds(path)]
     plots.mould_gallery(moulds[:n], out_png)
-    regime_table(moulds).to_csv(out_csv)
+    regime_table([m for m in moulds if m.family == PAPER]).to_csv(out_csv)
 
 
 def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[int]:

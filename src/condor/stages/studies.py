@@ -33,6 +33,7 @@ from condor.studies.convergence import convergence as convergence_study
 from condor.studies.fidelity import fidelity_table, paper_ensemble, prediction_row
 from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
+from condor.studies.families import FAMILY_COLUMNS, family_rows
 from condor.studies.reference import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
 from condor.surrogate.baselines import fit_baselines
@@ -43,8 +44,9 @@ log = logging.getLogger("condor")
 
 
 def study_moulds(config: Config) -> list[int]:
-    """The test moulds the accuracy study and the sweeps use (first `report.moulds` by id)."""
-    return config.test_moulds()[: config.report["moulds"]]
+    """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
+    of the paper test set (the generator's moulds, as the paper reference's)."""
+    return config.test_moulds("paper")[: config.report["moulds"]]
 
 
 def mould_by_id(moulds_jsons, mould_id: int):
@@ -131,14 +133,16 @@ def _predictor_answers(predictors: tuple[dict, list], ensemble) -> tuple[list, l
 
 def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy, out_statistics,
              out_calibration, out_chart, out_spread_chart, out_statistics_test=None,
-             out_calibration_test=None,
-             out_accuracy_test=None) -> tuple[pd.DataFrame, pd.DataFrame]:
+             out_calibration_test=None, out_accuracy_test=None,
+             out_lab: dict | None = None) -> tuple[pd.DataFrame, pd.DataFrame]:
     """Every method against the expected fields of the study's test moulds (module docs), and
     each surrogate's spread map against the replicas' scatter (a table, and the maps of the
     first surrogate on three test moulds). out_accuracy_test / out_statistics_test /
     out_calibration_test: the same tables of the surrogates and baselines alone on every
-    replicated test mould (they need no sweep; the default's 100 test moulds narrow an
-    interval about 3x against the study's 12)."""
+    replicated mould of the paper test set (they need no sweep; 60 test moulds narrow an
+    interval about 2x against the study's 12). out_lab: {"accuracy", "statistics",
+    "calibration", "families"} paths: the same tables on the lab test set, and each surrogate
+    family by family (condor.studies.families); empty tables when the config has none."""
     ensemble = reference_ensemble(store, study_moulds(config))
     log.info("reference ensemble: %d test moulds x %s", len(ensemble.moulds),
              ensemble.describe_replicas())
@@ -150,8 +154,8 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     outputs = [(out_accuracy, table), (out_statistics, statistics),
                (out_calibration, _calibration_frame(calibration))]
     if out_statistics_test is not None:
-        every = reference_ensemble(store, config.test_moulds())
-        log.info("predictors on every test mould: %d x %s", len(every.moulds),
+        every = reference_ensemble(store, config.test_moulds("paper"))
+        log.info("predictors on every paper test mould: %d x %s", len(every.moulds),
                  every.describe_replicas())
         predicted, calibration = _predictor_answers(predictors, every)
         every_errors, every_statistics = accuracy_study.accuracy_tables(every, predicted,
@@ -160,6 +164,8 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
                     (out_calibration_test, _calibration_frame(calibration))]
         if out_accuracy_test is not None:
             outputs.append((out_accuracy_test, every_errors))
+    if out_lab is not None:
+        outputs += _lab_tables(config, store, predictors, out_lab)
     for path, frame in outputs:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         frame.to_csv(path, index=False)
@@ -169,6 +175,31 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     log.info("\n%s", table[["method", "cpu_s_per_mould", "field_error", "field_error_lo",
                             "field_error_hi"]].to_string(index=False))
     return table, statistics
+
+
+def _lab_tables(config: Config, store, predictors, out_lab: dict) -> list:
+    """(path, table) of the surrogates and baselines on the lab test set: accuracy, statistics
+    and calibration as on the paper test set, and each surrogate family by family."""
+    moulds = config.test_moulds("lab")
+    if not moulds:
+        log.info("no lab test set (split.lab_test is 0)")
+        empty = pd.DataFrame(columns=["method"])
+        return [(out_lab[key], empty) for key in ("accuracy", "statistics", "calibration")] + \
+            [(out_lab["families"], pd.DataFrame(columns=["method", *FAMILY_COLUMNS]))]
+    lab = reference_ensemble(store, moulds)
+    log.info("predictors on the lab test set: %d x %s", len(lab.moulds), lab.describe_replicas())
+    predicted, calibration = _predictor_answers(predictors, lab)
+    errors, statistics = accuracy_study.accuracy_tables(lab, predicted, seed=config.seed)
+    sources = config.sources()
+    families = [sources[int(m)] for m in lab.moulds]
+    per_family = [family_rows(lab, answer.raw, families, seed=config.seed).assign(
+        method=answer.method) for answer in predicted if answer.family == "surrogate"]
+    table = (pd.concat(per_family, ignore_index=True) if per_family else
+             pd.DataFrame(columns=list(FAMILY_COLUMNS)))
+    table = table[["method", *FAMILY_COLUMNS]]
+    return [(out_lab["accuracy"], errors), (out_lab["statistics"], statistics),
+            (out_lab["calibration"], _calibration_frame(calibration)),
+            (out_lab["families"], table)]
 
 
 def _calibration_frame(calibration: list) -> pd.DataFrame:

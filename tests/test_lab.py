@@ -1,0 +1,74 @@
+"""Tests of the lab mould families (condor.data.lab)."""
+
+import numpy as np
+import pytest
+import shapely
+
+from condor.model.scenes import get_scene
+from condor.moulds.lab import (
+    AREA_RANGE, CLEARANCE, FAMILIES, FAMILY_NAMES, MAX_EXTENT, lab_geometry, lab_mould,
+)
+from condor.moulds.mould import PAPER, Mould, check_mould, load_json, save_json
+
+
+@pytest.mark.parametrize("family", FAMILY_NAMES)
+def test_every_family_draws_valid_moulds_within_its_ranges(family):
+    """40 moulds a family at the default box: the mould contract (validate_mould: inside the
+    box, posts inside and apart, room for cells), the area and extent rules, the posts'
+    clearance and radii, each measured on the geometry itself."""
+    box = 31.25
+    low, high = FAMILIES[family].ranges["post radius"]
+    counts = set()
+    for i in range(40):
+        polygon, tethers = lab_geometry(7, i, family, box)
+        check_mould(Mould(box=box, polygon=polygon, tethers=tethers))
+        fraction = polygon.area / box**2
+        assert AREA_RANGE[0] - 1e-9 <= fraction <= AREA_RANGE[1] + 1e-9
+        xmin, ymin, xmax, ymax = polygon.bounds
+        assert max(xmax - xmin, ymax - ymin) <= MAX_EXTENT * box * (1 + 1e-9)
+        assert 1 <= len(tethers) <= 8
+        r = tethers[:, 2] / box
+        assert np.all((r >= low - 1e-12) & (r <= high + 1e-12))
+        walls = shapely.boundary(polygon)
+        gaps = shapely.distance(walls, shapely.points(tethers[:, :2])) - tethers[:, 2]
+        assert gaps.min() >= CLEARANCE * box * (1 - 1e-9)
+        counts.add(len(tethers))
+    if family == "ring":
+        assert counts == {1}
+    if family in ("strip", "dogbone"):
+        assert counts == {2}
+
+
+def test_a_lab_mould_is_a_pure_function_of_seed_and_id():
+    a = lab_geometry(3, 11, "dogbone", 31.25)
+    b = lab_geometry(3, 11, "dogbone", 31.25)
+    c = lab_geometry(3, 12, "dogbone", 31.25)
+    assert a[0].equals_exact(b[0], 0) and np.array_equal(a[1], b[1])
+    assert not a[0].equals_exact(c[0], 1e-6)
+    # the box only scales: the same mould at half the box is the same shape, halved
+    half = lab_geometry(3, 11, "dogbone", 31.25 / 2)
+    assert np.allclose(np.asarray(half[0].exterior.coords) * 2, np.asarray(a[0].exterior.coords))
+
+
+def test_shapes_with_holes_have_holes_and_an_unknown_family_is_refused():
+    for family in ("annulus", "frame"):
+        polygon, _ = lab_geometry(1, 0, family, 31.25)
+        assert len(polygon.interiors) >= 1
+    with pytest.raises(ValueError, match="unknown lab family 'star'.*choose one of"):
+        lab_geometry(1, 0, "star", 31.25)
+
+
+def test_a_lab_mould_carries_its_family_through_json(tmp_path):
+    scene = get_scene("default")
+    mould = lab_mould(2026, 5, "frame", scene)
+    assert mould.family == "frame" and mould.seed == 2026 and not mould.is_generated
+    save_json(mould, tmp_path / "m.json")
+    back = load_json(tmp_path / "m.json")
+    assert back.family == "frame" and back.polygon.equals_exact(mould.polygon, 0)
+    # a mould file written before families existed reads as the generator's or a user's
+    plain = Mould(box=scene.box, polygon=mould.polygon, tethers=mould.tethers)
+    assert plain.family == "user"
+    d = mould.to_dict()
+    d.pop("family")
+    d["symmetry"] = "cyclic"
+    assert Mould.from_dict(d).family == PAPER
