@@ -1,8 +1,10 @@
 """Simulator speed: kernels, and the cost of a solve in evaluation-equivalents beside CPU seconds.
 
 Kernels, measured in one run (medians, process time, one thread), at about 10,000 cells:
-energy+gradient (ms, ns per bond), one bond energy (ns), a Metropolis trial (ns; bar 0.5 us)
-and the rasterisation of 10,000 cells into 8 fields at 256 px (ms; bar 20 ms).
+energy+gradient (ms, ns per bond), one bond energy (ns), a Metropolis trial (a move; ns; bar
+0.35 us, goal 0.25) and the rasterisation of 10,000 cells into 8 fields at 256 px (ms; bar
+20 ms). The anneal on --threads threads against one (wall time, interleaved runs; the same
+bits): the strips' parallel speed-up (bar 1.7x on 2 cores).
 
 Solves: each solver of --solvers (default: the default solver and the old default, hybrid) on
 mould 0 of dataset seed --seed in --scene (replica 0's seed), printing evaluation-equivalents
@@ -30,7 +32,7 @@ from shapely.geometry import box
 
 from condor.config import Config
 from condor.data import fields as F
-from condor.model.anneal import anneal
+from condor.model.anneal import anneal, available_threads
 from condor.model.energy import DELTA, bond_energies, energy_gradient, random_orientations
 from condor.model.lattice import build_lattice
 from condor.model.lbfgs import minimise_lbfgs
@@ -60,7 +62,7 @@ def kernels() -> dict:
     t_bonds = median_time(lambda: bond_energies(pos, ori, *args))
     n_mobile = int((~lat.fixed).sum())
     budget = 20
-    t_anneal = median_time(lambda: anneal(lat, pos, ori, budget, [0, 2]), repeats=3)
+    t_anneal = median_time(lambda: anneal(lat, pos, ori, budget, [0, 2]), repeats=5)
     # rasterisation: 10,000 cells over a disc of 40% of the paper box (bench_fields' layout)
     rng = np.random.default_rng([0, 10000])
     radius = np.sqrt(0.4 / np.pi) * PAPER_BOX * np.sqrt(rng.uniform(size=10000))
@@ -84,6 +86,27 @@ def kernels() -> dict:
         "ms_raster_10k_cells_8_fields_256px": 1e3 * t_raster,
         "ms_raster_pixel_weights_part": 1e3 * t_weights,
     }
+
+
+def parallel_speedup(threads: int, repeats: int = 5) -> dict:
+    """The anneal's wall time on `threads` threads against one, interleaved runs (medians)."""
+    side = np.sqrt(10000 / 6)
+    lat = build_lattice(box(0, 0, side, side), np.array([[side / 3, side / 2, 1.5]]), 4.0)
+    ori = random_orientations(lat.n_cells, np.random.default_rng([0, 0]))
+    budget = 20
+    n_moves = budget * int((~lat.fixed).sum())
+    walls = {1: [], threads: []}
+    for n in (1, threads):
+        anneal(lat, lat.positions, ori, 2, [0, 2], threads=n)  # compile and start the threads
+    for _ in range(repeats):
+        for n in (1, threads):
+            t = time.perf_counter()
+            anneal(lat, lat.positions, ori, budget, [0, 2], threads=n)
+            walls[n].append(time.perf_counter() - t)
+    one, many = np.median(walls[1]), np.median(walls[threads])
+    return {"threads": threads, "ns_per_move_wall_1_thread": 1e9 * one / n_moves,
+            f"ns_per_move_wall_{threads}_threads": 1e9 * many / n_moves,
+            "speedup": one / many}
 
 
 def solve_costs(scene_name: str, seed: int, solvers) -> list[dict]:
@@ -155,6 +178,8 @@ def main():
     ap.add_argument("--seed", type=int, default=Config.default().seed,
                     help="dataset seed of the mould (default: the default config's)")
     ap.add_argument("--solvers", nargs="+", default=[DEFAULT_SOLVER, "hybrid"])
+    ap.add_argument("--threads", type=int, default=min(2, available_threads()),
+                    help="threads of the anneal's parallel speed-up (default: 2, or 1 CPU)")
     a = ap.parse_args()
     warm_up()
     out = Path("results/benchmarks")
@@ -162,8 +187,13 @@ def main():
     print("kernels (one run):")
     k = kernels()
     _print(k)
-    print(f"  Metropolis trial {k['ns_per_metropolis_trial'] / 1e3:.2f} us (bar 0.5 us); raster "
+    print(f"  Metropolis trial {k['ns_per_metropolis_trial'] / 1e3:.3f} us (bar 0.35 us); raster "
           f"{k['ms_raster_10k_cells_8_fields_256px']:.1f} ms (bar 20 ms)")
+    if a.threads > 1:
+        p = parallel_speedup(a.threads)
+        print(f"\nthe anneal on {a.threads} threads (wall, interleaved, medians of 5):")
+        _print(p)
+        k.update(p)
     with open(out / "bench_simulator.csv", "w", newline="") as fh:
         w = csv.writer(fh)
         w.writerow(k.keys())

@@ -1,5 +1,7 @@
 """Tests of the Metropolis annealing kernel."""
 
+import json
+
 import numpy as np
 import pytest
 from shapely.geometry import box
@@ -7,10 +9,11 @@ from shapely.geometry import box
 import dataclasses
 
 from condor.model.anneal import (
-    INIT_AMP_ORI, INIT_AMP_POS, MAX_STEP_ORI, T_INIT, TARGET_ACCEPT, AnnealRun, anneal,
-    anneal_kernel, neighbour_lists, trial_energy_change,
+    INIT_AMP_ORI, INIT_AMP_POS, KERNEL, MAX_STEP_ORI, MOVES_PER_SWEEP, T_INIT, TARGET_ACCEPT,
+    AnnealRun, Layout, anneal, gather_neighbours, orientation_change, pack_state,
+    position_change, trial_energy_change,
 )
-from condor.model.energy import DELTA, bond_energies, random_orientations, total_energy
+from condor.model.energy import DELTA, random_orientations, total_energy
 from condor.model.lattice import build_lattice
 
 
@@ -26,21 +29,31 @@ def test_incremental_energy_change_equals_full_difference(mould):
     rng = np.random.default_rng([0, 4])
     pos = lat.positions + rng.normal(scale=0.05, size=lat.positions.shape)
     args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
-    bond_e = bond_energies(pos, ori, *args)
-    other, rest, kbar, twin = neighbour_lists(lat)
-    slot_e = bond_e[lat.cell_bonds]
-    assert np.array_equal(slot_e, slot_e[twin]) and np.all(twin != np.arange(len(twin)))
-    scratch = np.empty(64)
-    e0 = total_energy(pos, ori, *args)
+    lay = Layout.of(lat)
+    state = pack_state(pos, ori)
+    slots = (lay.cell_ptr, lay.other, lay.rest_a, lay.rest_b, lay.half_kbar)
+    buf = np.empty((8, lay.max_degree))
+    e0 = total_energy(pos, ori, *args)  # energy.py's own formula, bond by bond
     for cell in rng.choice(lat.n_cells, size=20, replace=False):
         new_r = pos[cell] + rng.uniform(-0.2, 0.2, 3)
         new_s = ori[cell] + rng.uniform(-0.5, 0.5, 3)
         new_s /= np.linalg.norm(new_s)
-        de = trial_energy_change(pos, ori, cell, new_r, new_s, lat.cell_ptr, other, rest, kbar,
-                                 DELTA, slot_e, scratch)
+        de = trial_energy_change(state, cell, *new_r, *new_s, *slots, buf)
         p2, o2 = pos.copy(), ori.copy()
         p2[cell], o2[cell] = new_r, new_s
         assert de == pytest.approx(total_energy(p2, o2, *args) - e0, rel=1e-9, abs=1e-12)
+        # each move of a visit alone
+        n = gather_neighbours(state, cell, lay.cell_ptr, lay.other, buf)
+        own = slice(lay.cell_ptr[cell], lay.cell_ptr[cell + 1])
+        parts = (lay.rest_a[own], lay.rest_b[own], lay.half_kbar[own])
+        moved = position_change(buf, n, *parts, *pos[cell], *new_r, *ori[cell])
+        p3 = pos.copy()
+        p3[cell] = new_r
+        assert moved == pytest.approx(total_energy(p3, ori, *args) - e0, rel=1e-9, abs=1e-12)
+        turned = orientation_change(buf, n, *parts, *pos[cell], *ori[cell], *new_s)
+        o3 = ori.copy()
+        o3[cell] = new_s
+        assert turned == pytest.approx(total_energy(pos, o3, *args) - e0, rel=1e-9, abs=1e-12)
 
 
 def test_running_energy_matches_final_state_and_is_deterministic(mould):
@@ -101,14 +114,13 @@ def test_metropolis_samples_boltzmann_at_fixed_temperature():
 
 
 def _kernel_run(lat, pos, ori, sweeps, temp, amp, seed):
-    """Run anneal_kernel in place for `sweeps` sweeps at fixed temperature `temp`."""
-    mobile = np.flatnonzero(~lat.fixed).astype(np.int64)
-    r = lat.region
-    _, _, acc_ori, _, _ = anneal_kernel(
-        pos, ori, mobile, lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, lat.cell_ptr,
-        lat.cell_bonds, *neighbour_lists(lat), DELTA, r.phi, r.phi_x0, r.phi_y0, r.phi_h,
-        r.posts, r.depth, sweeps * len(mobile), temp, 1.0, seed, amp)
-    return acc_ori / (sweeps * len(mobile) / 2)
+    """Run `sweeps` sweeps at fixed temperature `temp` from (pos, ori) with amplitudes amp,
+    all updated in place; returns the orientation moves' acceptance."""
+    run = AnnealRun(lat, pos, ori, sweeps * MOVES_PER_SWEEP, [seed], t_init=temp, t_ratio=1.0)
+    run.amp[:] = amp
+    run.advance()
+    pos[...], ori[...], amp[...] = run.pos, run.ori, run.amp
+    return run.info()["anneal_accept_ori"]
 
 
 def test_step_amplitude_does_not_wind_up_at_its_cap():
@@ -147,11 +159,11 @@ def test_anneal_resumed_from_checkpoints_is_bit_identical(mould, tmp_path):
     lat, ori = mould
     ref_pos, ref_ori, ref_info = anneal(lat, lat.positions, ori, 400, [5, 0])
     ck = tmp_path / "run.npz"
-    for stop in (1, 12345, 50001):  # mid-sweep cuts too
+    for stop in (1, 37, 150):
         run = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
         if ck.exists():
             run.load(ck)
-        run.advance(stop - run.trial)
+        run.advance(stop - run.sweep)
         run.save(ck)
     pos, o, info = anneal(lat, lat.positions, ori, 400, [5, 0], checkpoint=ck,
                           checkpoint_seconds=0.0)
@@ -164,37 +176,53 @@ def test_anneal_resumed_from_checkpoints_is_bit_identical(mould, tmp_path):
     assert np.array_equal(again[0], ref_pos)
 
 
-def test_checkpoint_keeps_bond_energies_as_bits_and_reads_the_older_plain_form(mould, tmp_path):
-    """The cached bond energies are saved as their XOR with the recomputed ones (the file
-    compresses); loading gives back the exact bits, as does a checkpoint written before, with
-    the energies plain."""
-    lat, ori = mould
-    run = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
-    run.advance(30001)
-    ck, old = tmp_path / "run.npz", tmp_path / "old.npz"
-    run.save(ck)
-    with np.load(ck) as data:
-        assert "slot_e" not in data.files and data["slot_xor"].dtype == np.uint64
-        fields = {name: data[name] for name in data.files if name != "slot_xor"}
-    np.savez(old, slot_e=run.slot_e, **fields)
-    for path in (ck, old):
-        back = AnnealRun(lat, lat.positions, ori, 400, [5, 0])
-        back.load(path)
-        assert np.array_equal(back.slot_e.view(np.uint64), run.slot_e.view(np.uint64))
-        assert np.array_equal(back.pos, run.pos) and back.trial == run.trial
-    assert ck.stat().st_size < 0.5 * old.stat().st_size
+def test_threads_give_the_same_bits_and_strips_never_bond_across_a_colour(tmp_path):
+    """The strips of one colour share no bond, so they run in parallel; the result is the
+    same bits on one thread or two, and resumes across thread counts."""
+    lat = build_lattice(box(0, 0, 14, 5), np.array([[2.0, 2.5, 0.8], [12.0, 2.5, 0.8]]), 2.0)
+    ori = random_orientations(lat.n_cells, np.random.default_rng([0, 3]))
+    lay = Layout.of(lat)
+    assert lay.n_strips >= 5
+    strip = np.full(lat.n_cells, -1)
+    for s in range(lay.n_strips):
+        strip[lay.strip_cells[lay.strip_ptr[s]:lay.strip_ptr[s + 1]]] = s
+    mobile = ~lat.fixed
+    assert np.array_equal(np.sort(np.flatnonzero(strip >= 0)), np.flatnonzero(mobile))
+    both = mobile[lat.bond_i] & mobile[lat.bond_j]
+    si, sj = strip[lat.bond_i[both]], strip[lat.bond_j[both]]
+    assert np.all((si == sj) | (si % 2 != sj % 2))  # never two strips of one colour
+    with pytest.raises(ValueError, match="wider than any bond"):
+        Layout.of(lat, strip_width=1.0)
+    one = anneal(lat, lat.positions, ori, 100, [5, 0], threads=1)
+    two = anneal(lat, lat.positions, ori, 100, [5, 0], threads=2)
+    assert np.array_equal(one[0], two[0]) and np.array_equal(one[1], two[1])
+    run = AnnealRun(lat, lat.positions, ori, 100, [5, 0], threads=2)
+    run.advance(20)
+    run.save(tmp_path / "ck.npz")
+    back = AnnealRun(lat, lat.positions, ori, 100, [5, 0], threads=1)
+    back.load(tmp_path / "ck.npz")
+    back.advance()
+    assert np.array_equal(back.pos, one[0])
 
 
 def test_checkpoint_of_another_run_or_corrupt_is_refused(mould, tmp_path):
     lat, ori = mould
     ck = tmp_path / "run.npz"
     run = AnnealRun(lat, lat.positions, ori, 50, [5, 0])
-    run.advance(1000)
+    run.advance(10)
     run.save(ck)
     with pytest.raises(ValueError, match="its seed is"):
         AnnealRun(lat, lat.positions, ori, 50, [6, 0]).load(ck)
-    with pytest.raises(ValueError, match="its n_trials is"):
+    with pytest.raises(ValueError, match="its n_sweeps is"):
         anneal(lat, lat.positions, ori, 60, [5, 0], checkpoint=ck)
+    other_kernel = tmp_path / "old.npz"
+    with np.load(ck) as data:
+        saved = dict(data)
+    saved["key"] = np.array(json.dumps({**json.loads(str(saved["key"])),
+                                        "kernel": "ball-2026-12"}))
+    np.savez(other_kernel, **saved)
+    with pytest.raises(ValueError, match=f"kernel 'ball-2026-12', not this one.*{KERNEL}"):
+        anneal(lat, lat.positions, ori, 50, [5, 0], checkpoint=other_kernel)
     ck.write_bytes(ck.read_bytes()[:200])  # truncated by a crash of the disk
     with pytest.raises(ValueError, match="not a readable anneal checkpoint.*delete it"):
         anneal(lat, lat.positions, ori, 50, [5, 0], checkpoint=ck)
@@ -227,7 +255,7 @@ def _cell_energy(lat, ori, cell, r, s):
 
 
 def _fixed_t_samples(lat, ori, temp, steps, n_samples, thin, seed, start=None):
-    """States of a Metropolis chain at `temp` with fixed steps (dr, ds), every `thin` trials."""
+    """States of a Metropolis chain at `temp` with fixed steps (dr, ds), every `thin` sweeps."""
     pos = lat.positions if start is None else start
     run = AnnealRun(lat, pos, ori, 1e9, [seed], t_init=temp, t_ratio=1.0, adapt=False)
     run.amp[:] = np.asarray(steps) / np.sqrt(temp)
@@ -304,11 +332,11 @@ def test_equipartition_of_the_harmonic_network():
     means = {}
     for temp in (1e-6, 3e-6):
         run = AnnealRun(lat, pos, ori, 1e12, [1], t_init=temp, t_ratio=1.0)
-        run.advance(n * 2000)  # adapt the steps, then fix them
+        run.advance(1000)  # adapt the steps, then fix them
         run.adapt = False
         energies = []
         for _ in range(4000):
-            run.advance(n * 5)
+            run.advance(3)
             energies.append(run.temp_energy[1])
         means[temp] = np.mean(energies)
     dof = 2 * (means[3e-6] - means[1e-6]) / 2e-6
@@ -321,7 +349,7 @@ def test_zero_energy_samples_uniform_orientations_and_positions():
     lat0 = build_lattice(box(0, 0, 4, 3), np.zeros((0, 3)), 2.0)
     lat = dataclasses.replace(lat0, bond_kbar=np.zeros_like(lat0.bond_kbar))
     ori = np.tile([0.0, 0.0, 1.0], (lat.n_cells, 1))  # far from isotropic at the start
-    pos, o = _fixed_t_samples(lat, ori, 1e-3, (0.3, 1.0), 400, lat.n_cells * 20, 5)
+    pos, o = _fixed_t_samples(lat, ori, 1e-3, (0.3, 1.0), 400, 10, 5)
     pos, o = pos[100:].reshape(-1, 3), o[100:].reshape(-1, 3)
     assert np.allclose(o.T @ o / len(o), np.eye(3) / 3, atol=0.01)
     z = pos[:, 2]
@@ -335,7 +363,7 @@ def test_zero_energy_samples_uniform_orientations_and_positions():
 def test_set_state_keeps_the_running_energy_exact(mould):
     lat, ori = mould
     run = AnnealRun(lat, lat.positions, ori, 20, [3, 0])
-    run.advance(run.n_trials // 2)
+    run.advance(run.n_sweeps // 2)
     moved = run.pos + 0.01 * np.random.default_rng(0).standard_normal(run.pos.shape)
     moved[lat.fixed] = lat.positions[lat.fixed]
     run.set_state(moved, run.ori.copy())

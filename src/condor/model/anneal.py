@@ -1,10 +1,12 @@
-"""The paper's single-cell Metropolis simulated annealing (numba kernel + a thin driver).
+"""The paper's single-cell Metropolis simulated annealing (numba kernels + a thin driver).
 
-Schedule: exponential, T_k = T_init * ratio^(-k / n_trials) for trial k, from T_init = 0.0625
-kappa0 l0^2 down to T_init / 1e7, over n_trials = budget * n_mobile trials (budget = moves
-per cell; the paper's is 1e6).
+Schedule: exponential, from T_init = 0.0625 kappa0 l0^2 down to T_init / 1e7 over `budget`
+moves per cell (the paper's budget is 1e6), rounded to whole sweeps. A sweep is two half
+sweeps, one per strip colour (below), and the temperature falls by a constant factor after
+each half sweep: T_h = T_init * ratio^(-h / (2 n_sweeps)).
 
-A trial picks a mobile cell uniformly at random and, with equal probability, proposes either
+A trial picks a mobile cell uniformly at random (within a strip, below) and, with equal
+probability, proposes either
   * a position move r' = r + U([-dr, dr]^3)      (uniform step-function proposal), or
   * an orientation move s' = (s + ds u) / |...|, u uniform in the unit ball (isotropic, so the
     proposal is symmetric; the energy is even in s so the sign of s carries no meaning).
@@ -14,20 +16,38 @@ The move is accepted with probability min(1, exp(-dE / T)). A position outside t
 region (the mould polygon minus tether disks, 0 <= z <= depth) would pay the paper's 1e9
 penalty, so it is rejected outright without evaluating the energy.
 
+Strips (kernel `strips-2026-12`): the mobile cells are cut into strips of STRIP_WIDTH along
+x by their lattice sites, wider than any bond's reach in x (2 l0), so a bond joins cells of
+one strip or of two neighbouring strips, never two strips of one colour (strip index mod 2;
+checked on the bonds when the strips are built). In a half sweep every strip of one colour
+runs as many trials as it has mobile cells, on its own cells only, with its own random
+stream, while the other colour's cells hold still. Each half sweep is thus a product of
+Metropolis updates that each keep the Boltzmann distribution, and the strips of a colour are
+independent of one another, so they run on as many threads as a job has (`threads`) with the
+same bits whatever the thread count. Until 2026-12 the kernel (`ball-2026-12`) picked a cell
+among all mobile cells at each trial and lowered T after every trial; the default scene's
+1e5/1e6 reference rungs were made with it.
+
 Step-size adaptation: dr = a_r sqrt(T) and ds = a_s sqrt(T) follow the cooling (thermal
-fluctuations scale as sqrt(T) in a harmonic well); after every sweep (n_mobile trials) each
-amplitude a is multiplied by 1.2 if that move type's acceptance exceeded 40% and divided by
-1.2 otherwise, with dr <= 0.5 l0 and ds <= 1. An amplitude is clamped to the one that meets
-its cap at the current T: without the clamp, the orientation amplitude grew by 1.2 per sweep
-while ds sat at its cap in the hot phase (acceptance > 40% even at ds = 1 above T ~ 0.01),
-then needed as many sweeps to come back, and overflowed to inf beyond 4-5e4 moves per cell,
-which left ds = 1 and the orientations frozen for the rest of the anneal.
+fluctuations scale as sqrt(T) in a harmonic well); after every sweep each amplitude a is
+multiplied by 1.2 if that move type's acceptance exceeded 40% and divided by 1.2 otherwise,
+with dr <= 0.5 l0 and ds <= 1. An amplitude is clamped to the one that meets its cap at the
+current T: without the clamp, the orientation amplitude grew by 1.2 per sweep while ds sat at
+its cap in the hot phase (acceptance > 40% even at ds = 1 above T ~ 0.01), then needed as many
+sweeps to come back, and overflowed to inf beyond 4-5e4 moves per cell, which left ds = 1 and
+the orientations frozen for the rest of the anneal.
 
-A trial is O(1): it recomputes only the bonds of the moved cell through per-cell bond lists
-that hold each bond's other cell, rest length, kbar and cached energy contiguously
-(`neighbour_lists`; an accepted move updates both copies).
+A trial is O(1) and recomputes only the bonds of the moved cell. The layout streams: each
+cell's position and orientation share one cache line (`Layout.state`, 8 doubles a cell), and
+each cell's bond slots hold the other cell, the two parts of the rest length
+(L = a + b (c_i^2 + c_j^2) with a = l0 (1 - Delta), b = l0 Delta / 2, so the energy needs
+no per-bond cosine divisions), kbar / 2 and the cached bond energy, contiguously. A trial
+gathers its neighbours' states into small buffers, then evaluates the bonds in a loop that the
+compiler vectorises (no fast-math: the same bits on every CPU), then sums the changes in eight
+fixed lanes.
 
-Randomness: a xorshift64* stream seeded from numpy.random.default_rng; deterministic.
+Randomness: xorshift64* streams, one a strip, seeded from numpy.random.default_rng;
+deterministic.
 """
 
 from __future__ import annotations
@@ -37,12 +57,13 @@ import json
 import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numba
 import numpy as np
 
-from condor.model.energy import DELTA, bond_energies, rest_length
+from condor.model.energy import DELTA
 from condor.model.lattice import region_distance
 
 T_INIT = 0.0625  # kappa0 l0^2 (paper)
@@ -54,265 +75,460 @@ MAX_STEP_POS = 0.5  # l0
 MAX_STEP_ORI = 1.0
 INIT_AMP_POS = 0.4  # dr = 0.1 l0 at T_init
 INIT_AMP_ORI = 1.2  # ds = 0.3 at T_init
-KERNEL = "ball-2026-12"  # the orientation proposal; a checkpoint of another kernel is refused
+KERNEL = "strips-2026-12"  # the trial order and proposals; a checkpoint of another is refused
+MOVES_PER_SWEEP = 2  # a visit tries a position move and an orientation move
+STRIP_WIDTH = 2.5  # l0, along x: wider than a bond's reach (2 l0, the fourth shell)
 CHECKPOINT_SECONDS = 300.0  # wall time between a resumable anneal's checkpoints
 CHECKPOINT_CHUNKS = 1000  # a resumable anneal runs in about this many segments
 
 _U53 = 1.0 / 9007199254740992.0  # 2^-53
+_STATE = 8  # doubles a cell in Layout.state: x, y, z, -, sx, sy, sz, -
+# per-strip counters: accepted position moves, accepted orientation moves, rejected by
+# confinement, bond energies evaluated, tried position moves, tried orientation moves
+_N_COUNTS = 6
 
 
 @numba.njit(cache=True, inline="always")
-def _next_uniform(state):
-    """xorshift64* step on state[0]; a uniform double in [0, 1)."""
-    x = state[0]
+def _next_uniform(state, s):
+    """xorshift64* step on state[s]; a uniform double in [0, 1)."""
+    x = state[s]
     x ^= x >> np.uint64(12)
     x ^= x << np.uint64(25)
     x ^= x >> np.uint64(27)
-    state[0] = x
+    state[s] = x
     y = x * np.uint64(2685821657736338717)
     return float(y >> np.uint64(11)) * _U53
 
 
-@numba.njit(cache=True)
-def trial_energy_change(pos, ori, cell, new_r, new_s, cell_ptr, nbr_other, nbr_rest, nbr_kbar,
-                        delta, slot_e, scratch):
-    """Energy change of moving `cell` to (new_r, new_s), using cached bond energies.
+def _stream_seeds(seed: int, n: int) -> np.ndarray:
+    """n independent non-zero xorshift states from one seed (numpy's SeedSequence)."""
+    words = np.random.SeedSequence([int(seed), 0xC0D0]).generate_state(n, dtype=np.uint64)
+    return words | np.uint64(1)
 
-    The cell's bonds are the slots cell_ptr[cell]:cell_ptr[cell + 1] of the per-cell lists
-    (`neighbour_lists`): the other cell, rest length, kbar and cached energy of each bond,
-    laid out contiguously so that a trial reads them in order. Writes the new energy of each
-    of the cell's bonds into scratch[0:count] (in slot order).
+
+@dataclass(frozen=True)
+class Layout:
+    """The kernel's view of a lattice: per-cell bond slots in CSR order and the strips.
+
+    Slots (`cell_ptr`): other cell, the rest length's two parts a = l0 (1 - Delta) and
+    b = l0 Delta / 2, and kbar / 2 (each bond twice, once in each cell's list). Strips: the mobile cells grouped by strip
+    (`strip_cells[strip_ptr[s]:strip_ptr[s + 1]]`), and each colour's strips.
     """
-    de = 0.0
-    n = 0
-    for k in range(cell_ptr[cell], cell_ptr[cell + 1]):
-        other = nbr_other[k]
-        # Bond vector from cell to other; c_i, c_j are even in the sign of l.
-        lx = pos[other, 0] - new_r[0]
-        ly = pos[other, 1] - new_r[1]
-        lz = pos[other, 2] - new_r[2]
-        d = math.sqrt(lx * lx + ly * ly + lz * lz)
-        inv = 1.0 / d
-        c1 = (lx * new_s[0] + ly * new_s[1] + lz * new_s[2]) * inv
-        c2 = (lx * ori[other, 0] + ly * ori[other, 1] + lz * ori[other, 2]) * inv
-        g = d - rest_length(nbr_rest[k], c1, c2, delta)
-        e_new = 0.5 * nbr_kbar[k] * g * g
-        scratch[n] = e_new
-        n += 1
-        de += e_new - slot_e[k]
-    return de
+
+    cell_ptr: np.ndarray
+    other: np.ndarray
+    rest_a: np.ndarray
+    rest_b: np.ndarray
+    half_kbar: np.ndarray
+    strip_ptr: np.ndarray
+    strip_cells: np.ndarray
+    colours: tuple  # (strips of colour 0, strips of colour 1), int64 arrays
+    max_degree: int
+
+    @property
+    def n_strips(self) -> int:
+        return len(self.strip_ptr) - 1
+
+    @classmethod
+    def of(cls, lattice, delta: float = DELTA, strip_width: float = STRIP_WIDTH) -> "Layout":
+        cell_ptr, bonds = lattice.cell_ptr, lattice.cell_bonds
+        owner = np.repeat(np.arange(lattice.n_cells), np.diff(cell_ptr))
+        other = np.where(lattice.bond_i[bonds] == owner, lattice.bond_j[bonds],
+                         lattice.bond_i[bonds])
+        rest = lattice.bond_rest[bonds]
+        mobile = np.flatnonzero(~lattice.fixed).astype(np.int64)
+        x = lattice.positions[:, 0]
+        x0 = x.min() if len(x) else 0.0
+        strip = np.floor((x - x0) / strip_width).astype(np.int64)
+        n_strips = int(strip[mobile].max()) + 1 if len(mobile) else 1
+        # The colouring's condition, checked on the bonds themselves: two mobile cells that
+        # share a bond lie in one strip or in neighbouring strips.
+        both = ~lattice.fixed[lattice.bond_i] & ~lattice.fixed[lattice.bond_j]
+        reach = np.abs(strip[lattice.bond_i[both]] - strip[lattice.bond_j[both]])
+        if reach.size and reach.max() > 1:
+            raise ValueError(f"a bond spans {reach.max()} strips of {strip_width} l0; "
+                             "the strips must be wider than any bond's reach in x")
+        by_strip = mobile[np.argsort(strip[mobile], kind="stable")]
+        counts = np.bincount(strip[mobile], minlength=n_strips)
+        strip_ptr = np.concatenate([[0], np.cumsum(counts)]).astype(np.int64)
+        ids = np.arange(n_strips, dtype=np.int64)
+        return cls(cell_ptr=np.ascontiguousarray(cell_ptr, dtype=np.int64),
+                   other=other.astype(np.int64), rest_a=rest * (1.0 - delta),
+                   rest_b=rest * (0.5 * delta), half_kbar=0.5 * lattice.bond_kbar[bonds],
+                   strip_ptr=strip_ptr, strip_cells=by_strip.astype(np.int64),
+                   colours=(ids[0::2].copy(), ids[1::2].copy()),
+                   max_degree=int(np.diff(cell_ptr).max(initial=1)))
 
 
-def neighbour_lists(lattice):
-    """Per-cell bond slots in CSR order (cell_ptr): (other cell, rest, kbar, twin), twin being
-    the slot of the same bond in the other cell's list (both hold its cached energy)."""
-    cell_ptr, bonds = lattice.cell_ptr, lattice.cell_bonds
-    owner = np.repeat(np.arange(lattice.n_cells), np.diff(cell_ptr))
-    other = np.where(lattice.bond_i[bonds] == owner, lattice.bond_j[bonds], lattice.bond_i[bonds])
-    order = np.argsort(bonds, kind="stable")  # the two slots of each bond, adjacent
-    twin = np.empty(len(bonds), dtype=np.int64)
-    twin[order[0::2]] = order[1::2]
-    twin[order[1::2]] = order[0::2]
-    return (other.astype(np.int64), lattice.bond_rest[bonds].copy(),
-            lattice.bond_kbar[bonds].copy(), twin)
+def pack_state(positions, orientations) -> np.ndarray:
+    """(N, 8) float64: each cell's position and orientation in one cache line."""
+    state = np.zeros((len(positions), _STATE))
+    state[:, 0:3] = positions
+    state[:, 4:7] = orientations
+    return state
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _position_changes(bx, by, bz, ox, oy, oz, rest_a, rest_b, half_kbar, diff, n, rx, ry, rz,
+                      nx, ny, nz, sx, sy, sz):
+    """diff[q]: the change of bond q's energy when the cell (orientation s) moves from r to n,
+    its neighbours at b with orientations o (contiguous buffers: the loop vectorises)."""
+    for q in range(n):
+        lx = bx[q] - rx
+        ly = by[q] - ry
+        lz = bz[q] - rz
+        d2 = lx * lx + ly * ly + lz * lz
+        ci = lx * sx + ly * sy + lz * sz
+        cj = lx * ox[q] + ly * oy[q] + lz * oz[q]
+        g = math.sqrt(d2) - rest_a[q] - rest_b[q] * (ci * ci + cj * cj) / d2
+        mx = bx[q] - nx
+        my = by[q] - ny
+        mz = bz[q] - nz
+        m2 = mx * mx + my * my + mz * mz
+        ck = mx * sx + my * sy + mz * sz
+        cl = mx * ox[q] + my * oy[q] + mz * oz[q]
+        h = math.sqrt(m2) - rest_a[q] - rest_b[q] * (ck * ck + cl * cl) / m2
+        diff[q] = half_kbar[q] * (h * h - g * g)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def _orientation_changes(bx, by, bz, ox, oy, oz, rest_a, rest_b, half_kbar, diff, n, rx, ry,
+                         rz, sx, sy, sz, tx, ty, tz):
+    """diff[q]: the change of bond q's energy when the cell at r turns from s to t: the bond
+    vectors stay, so one square root and one division serve both energies."""
+    for q in range(n):
+        lx = bx[q] - rx
+        ly = by[q] - ry
+        lz = bz[q] - rz
+        d2 = lx * lx + ly * ly + lz * lz
+        inv = 1.0 / d2
+        cj = lx * ox[q] + ly * oy[q] + lz * oz[q]
+        base = math.sqrt(d2) - rest_a[q] - rest_b[q] * cj * cj * inv
+        ci = lx * sx + ly * sy + lz * sz
+        ck = lx * tx + ly * ty + lz * tz
+        g = base - rest_b[q] * ci * ci * inv
+        h = base - rest_b[q] * ck * ck * inv
+        diff[q] = half_kbar[q] * (h * h - g * g)
+
+
+@numba.njit(cache=True, inline="always")
+def _sum_lanes(x, n):
+    """x[:n].sum() in eight fixed lanes: the same bits on every CPU, and no serial chain."""
+    a0 = a1 = a2 = a3 = a4 = a5 = a6 = a7 = 0.0
+    q = 0
+    while q + 8 <= n:
+        a0 += x[q]
+        a1 += x[q + 1]
+        a2 += x[q + 2]
+        a3 += x[q + 3]
+        a4 += x[q + 4]
+        a5 += x[q + 5]
+        a6 += x[q + 6]
+        a7 += x[q + 7]
+        q += 8
+    while q < n:
+        a0 += x[q]
+        q += 1
+    return ((a0 + a1) + (a2 + a3)) + ((a4 + a5) + (a6 + a7))
+
+
+@numba.njit(cache=True, error_model="numpy")
+def gather_neighbours(state, cell, cell_ptr, other, buf):
+    """Copy the states of `cell`'s bonded neighbours into buf[0:6, :n] (x, y, z, sx, sy, sz,
+    each contiguous); returns n, the cell's bond count."""
+    p0 = cell_ptr[cell]
+    n = cell_ptr[cell + 1] - p0
+    bx, by, bz, ox, oy, oz = buf[0], buf[1], buf[2], buf[3], buf[4], buf[5]
+    for q in range(n):
+        o = other[p0 + q]
+        bx[q] = state[o, 0]
+        by[q] = state[o, 1]
+        bz[q] = state[o, 2]
+        ox[q] = state[o, 4]
+        oy[q] = state[o, 5]
+        oz[q] = state[o, 6]
+    return n
+
+
+@numba.njit(cache=True, error_model="numpy")
+def position_change(buf, n, rest_a, rest_b, half_kbar, rx, ry, rz, nx, ny, nz, sx, sy, sz):
+    """Energy change of the gathered cell (orientation s) moving from r to n; rest_a, rest_b,
+    half_kbar: its own slots."""
+    _position_changes(buf[0], buf[1], buf[2], buf[3], buf[4], buf[5], rest_a, rest_b,
+                      half_kbar, buf[6], n, rx, ry, rz, nx, ny, nz, sx, sy, sz)
+    return _sum_lanes(buf[6], n)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def orientation_change(buf, n, rest_a, rest_b, half_kbar, rx, ry, rz, sx, sy, sz, tx, ty, tz):
+    """Energy change of the gathered cell at r turning from s to t."""
+    _orientation_changes(buf[0], buf[1], buf[2], buf[3], buf[4], buf[5], rest_a, rest_b,
+                         half_kbar, buf[6], n, rx, ry, rz, sx, sy, sz, tx, ty, tz)
+    return _sum_lanes(buf[6], n)
+
+
+@numba.njit(cache=True, error_model="numpy")
+def trial_energy_change(state, cell, nx, ny, nz, tx, ty, tz, cell_ptr, other, rest_a, rest_b,
+                        half_kbar, buf):
+    """Energy change of moving `cell` from its state to position n and orientation t (a
+    position move, then a turn in place: the two moves of a visit). buf: (7, max_degree)
+    scratch. No bond energy is cached: each move computes its bonds before and after, so an
+    accepted move writes the cell's state (one cache line) and nothing else."""
+    n = gather_neighbours(state, cell, cell_ptr, other, buf)
+    p0, p1 = cell_ptr[cell], cell_ptr[cell + 1]
+    ra, rb, hk = rest_a[p0:p1], rest_b[p0:p1], half_kbar[p0:p1]
+    rx, ry, rz = state[cell, 0], state[cell, 1], state[cell, 2]
+    sx, sy, sz = state[cell, 4], state[cell, 5], state[cell, 6]
+    return (position_change(buf, n, ra, rb, hk, rx, ry, rz, nx, ny, nz, sx, sy, sz)
+            + orientation_change(buf, n, ra, rb, hk, nx, ny, nz, sx, sy, sz, tx, ty, tz))
 
 
 @numba.njit(cache=True)
-def anneal_segment(
-    pos, ori, mobile, cell_ptr, nbr_other, nbr_rest, nbr_kbar, twin, delta, phi, phi_x0, phi_y0,
-    phi_h, posts, depth, slot_e, rng_state, amp, temp_energy, counts, trial_start, trial_stop,
-    decay, scratch, adapt=True,
-):
-    """Run trials trial_start..trial_stop - 1 of an anneal in place: the whole mutable state is
-    in the arguments, so an anneal cut into segments (and saved between them) is bit-identical
-    to one call over all its trials.
-
-    slot_e: cached energy of every bond slot (`neighbour_lists` order); rng_state: uint64[1];
-    amp: float64[2] step amplitudes (a_r, a_s); temp_energy: float64[2] (the temperature of
-    the next trial, the running energy); counts: int64[8] (accepted position moves, accepted
-    orientation moves, rejected by confinement, bond energies evaluated, and this sweep's tried
-    and accepted position and orientation moves); decay: the factor T falls by per trial.
-    """
-    n_mobile = len(mobile)
-    temp = temp_energy[0]
-    energy = temp_energy[1]
-    new_r = np.empty(3)
-    new_s = np.empty(3)
-    acc_pos, acc_ori, n_outside, bonds_evaluated = counts[0], counts[1], counts[2], counts[3]
-    tried_pos_sweep, tried_ori_sweep = counts[4], counts[5]
-    acc_pos_sweep, acc_ori_sweep = counts[6], counts[7]
-    for trial in range(trial_start, trial_stop):
-        cell = mobile[min(int(_next_uniform(rng_state) * n_mobile), n_mobile - 1)]
-        sqrt_t = math.sqrt(temp)
-        move_pos = _next_uniform(rng_state) < 0.5
-        if move_pos:
-            tried_pos_sweep += 1
-            step = min(amp[0] * sqrt_t, MAX_STEP_POS)
-            for a in range(3):
-                new_r[a] = pos[cell, a] + step * (2.0 * _next_uniform(rng_state) - 1.0)
-                new_s[a] = ori[cell, a]
-            outside = new_r[2] < 0.0 or new_r[2] > depth
-            if not outside:
-                outside = region_distance(phi, phi_x0, phi_y0, phi_h, posts, new_r[0],
-                                          new_r[1]) < 0.0
-            if outside:
-                n_outside += 1
-        else:
-            outside = False
-            tried_ori_sweep += 1
-            step = min(amp[1] * sqrt_t, MAX_STEP_ORI)
-            # A uniform point of the ball of radius `step` (rejection from the cube), added
-            # and renormalised: the ball is isotropic, so the proposal density depends on
-            # s . s' alone and is symmetric (detailed balance). A cube's is not, and biased
-            # the sampled orientations at large steps (tests/test_anneal.py).
-            while True:
-                u2 = 0.0
-                for a in range(3):
-                    new_s[a] = 2.0 * _next_uniform(rng_state) - 1.0
-                    u2 += new_s[a] * new_s[a]
-                if u2 <= 1.0:
-                    break
-            norm2 = 0.0
-            for a in range(3):
-                new_r[a] = pos[cell, a]
-                new_s[a] = ori[cell, a] + step * new_s[a]
-                norm2 += new_s[a] * new_s[a]
-            inv = 1.0 / math.sqrt(norm2)
-            for a in range(3):
-                new_s[a] *= inv
-        de = 0.0
-        if not outside:
-            bonds_evaluated += cell_ptr[cell + 1] - cell_ptr[cell]
-            de = trial_energy_change(pos, ori, cell, new_r, new_s, cell_ptr, nbr_other,
-                                     nbr_rest, nbr_kbar, delta, slot_e, scratch)
-        if not outside and (de <= 0.0 or _next_uniform(rng_state) < math.exp(-de / temp)):
-            energy += de
-            n = 0
-            for k in range(cell_ptr[cell], cell_ptr[cell + 1]):
-                slot_e[k] = scratch[n]
-                slot_e[twin[k]] = scratch[n]
-                n += 1
-            for a in range(3):
-                pos[cell, a] = new_r[a]
-                ori[cell, a] = new_s[a]
-            if move_pos:
-                acc_pos += 1
-                acc_pos_sweep += 1
-            else:
-                acc_ori += 1
-                acc_ori_sweep += 1
-        temp *= decay
-        if adapt and (trial + 1) % n_mobile == 0:  # adapt once per sweep
-            # Anti-windup: an amplitude never grows past the one that reaches its step cap at
-            # the current temperature, so it can shrink as soon as the acceptance falls.
-            cap_scale = 1.0 / math.sqrt(temp) if temp > 0.0 else math.inf
-            if tried_pos_sweep > 0:
-                up = acc_pos_sweep > TARGET_ACCEPT * tried_pos_sweep
-                amp[0] = amp[0] * ADAPT_FACTOR if up else amp[0] / ADAPT_FACTOR
-                amp[0] = min(amp[0], MAX_STEP_POS * cap_scale)
-            if tried_ori_sweep > 0:
-                up = acc_ori_sweep > TARGET_ACCEPT * tried_ori_sweep
-                amp[1] = amp[1] * ADAPT_FACTOR if up else amp[1] / ADAPT_FACTOR
-                amp[1] = min(amp[1], MAX_STEP_ORI * cap_scale)
-            tried_pos_sweep = tried_ori_sweep = acc_pos_sweep = acc_ori_sweep = 0
-    temp_energy[0] = temp
-    temp_energy[1] = energy
-    counts[0], counts[1], counts[2], counts[3] = acc_pos, acc_ori, n_outside, bonds_evaluated
-    counts[4], counts[5] = tried_pos_sweep, tried_ori_sweep
-    counts[6], counts[7] = acc_pos_sweep, acc_ori_sweep
-
-
-@numba.njit(cache=True)
-def _kernel_sum(values):
-    """values.sum() as the kernels take it (numba's order), so that a driver's running energy
-    starts from the same bits as anneal_kernel's."""
-    return values.sum()
-
-
-@numba.njit(cache=True)
-def max_degree(cell_ptr):
-    out = 1
+def total_energy(state, cell_ptr, other, rest_a, rest_b, half_kbar):
+    """E, each bond once (from its lower-numbered cell), computed as the trials compute it."""
+    e = 0.0
     for c in range(len(cell_ptr) - 1):
-        out = max(out, cell_ptr[c + 1] - cell_ptr[c])
-    return out
+        for k in range(cell_ptr[c], cell_ptr[c + 1]):
+            o = other[k]
+            if o < c:
+                continue
+            lx = state[o, 0] - state[c, 0]
+            ly = state[o, 1] - state[c, 1]
+            lz = state[o, 2] - state[c, 2]
+            d2 = lx * lx + ly * ly + lz * lz
+            ci = lx * state[c, 4] + ly * state[c, 5] + lz * state[c, 6]
+            cj = lx * state[o, 4] + ly * state[o, 5] + lz * state[o, 6]
+            g = math.sqrt(d2) - rest_a[k] - rest_b[k] * (ci * ci + cj * cj) / d2
+            e += half_kbar[k] * g * g
+    return e
 
 
-@numba.njit(cache=True)
-def anneal_kernel(
-    pos, ori, mobile, bond_i, bond_j, kbar, rest, cell_ptr, cell_bonds, nbr_other, nbr_rest,
-    nbr_kbar, twin, delta, phi, phi_x0, phi_y0, phi_h, posts, depth, n_trials, t_init, t_ratio,
-    seed, amp,
-):
-    """Run n_trials Metropolis trials in place on pos, ori (N, 3) (one `anneal_segment`).
+@numba.njit(cache=True, error_model="numpy")
+def _strip_visits(s, state, cell_ptr, other, rest_a, rest_b, half_kbar, strip_ptr,
+                  strip_cells, phi, phi_x0, phi_y0, phi_h, posts, depth, rng, temp, step_pos,
+                  step_ori, strip_de, strip_counts, buf):
+    """One half sweep of strip s: as many visits as it has cells, at temperature `temp` with
+    steps (step_pos, step_ori), on its own cells and random stream rng[s]. A visit tries a
+    position move, then an orientation move, of one cell picked at random; both read the
+    neighbours gathered once. Writes the energy change to strip_de[s] and the counters to
+    strip_counts[s]."""
+    start = strip_ptr[s]
+    n_cells = strip_ptr[s + 1] - start
+    inv_t = 1.0 / temp
+    de_total = 0.0
+    acc_pos = acc_ori = outside_n = evaluated = 0
+    b = buf[s]
+    for _ in range(n_cells):
+        cell = strip_cells[start + min(int(_next_uniform(rng, s) * n_cells), n_cells - 1)]
+        n = gather_neighbours(state, cell, cell_ptr, other, b)
+        p0, p1 = cell_ptr[cell], cell_ptr[cell + 1]
+        ra, rb, hk = rest_a[p0:p1], rest_b[p0:p1], half_kbar[p0:p1]
+        rx, ry, rz = state[cell, 0], state[cell, 1], state[cell, 2]
+        sx, sy, sz = state[cell, 4], state[cell, 5], state[cell, 6]
+        # the position move: uniform in the cube of half-side step_pos
+        nx = rx + step_pos * (2.0 * _next_uniform(rng, s) - 1.0)
+        ny = ry + step_pos * (2.0 * _next_uniform(rng, s) - 1.0)
+        nz = rz + step_pos * (2.0 * _next_uniform(rng, s) - 1.0)
+        if nz < 0.0 or nz > depth or region_distance(phi, phi_x0, phi_y0, phi_h, posts,
+                                                     nx, ny) < 0.0:
+            outside_n += 1
+        else:
+            evaluated += n
+            de = position_change(b, n, ra, rb, hk, rx, ry, rz, nx, ny, nz, sx, sy, sz)
+            if de <= 0.0 or _next_uniform(rng, s) < math.exp(-de * inv_t):
+                de_total += de
+                rx, ry, rz = nx, ny, nz
+                state[cell, 0], state[cell, 1], state[cell, 2] = rx, ry, rz
+                acc_pos += 1
+        # the orientation move: a uniform point of the ball of radius step_ori (rejection from
+        # the cube), added and renormalised. The ball is isotropic, so the proposal density
+        # depends on s . s' alone and is symmetric (detailed balance). A cube's is not, and
+        # biased the sampled orientations at large steps (tests/test_anneal.py).
+        while True:
+            ux = 2.0 * _next_uniform(rng, s) - 1.0
+            uy = 2.0 * _next_uniform(rng, s) - 1.0
+            uz = 2.0 * _next_uniform(rng, s) - 1.0
+            if ux * ux + uy * uy + uz * uz <= 1.0:
+                break
+        tx = sx + step_ori * ux
+        ty = sy + step_ori * uy
+        tz = sz + step_ori * uz
+        inv = 1.0 / math.sqrt(tx * tx + ty * ty + tz * tz)
+        tx *= inv
+        ty *= inv
+        tz *= inv
+        evaluated += n
+        de = orientation_change(b, n, ra, rb, hk, rx, ry, rz, sx, sy, sz, tx, ty, tz)
+        if de <= 0.0 or _next_uniform(rng, s) < math.exp(-de * inv_t):
+            de_total += de
+            state[cell, 4], state[cell, 5], state[cell, 6] = tx, ty, tz
+            acc_ori += 1
+    strip_de[s] = de_total
+    c = strip_counts[s]
+    c[0], c[1], c[2], c[3], c[4], c[5] = acc_pos, acc_ori, outside_n, evaluated, n_cells, n_cells
 
-    amp: float64[2] step amplitudes (a_r, a_s), updated in place. Returns
-    (energy, accepted position moves, accepted orientation moves, rejected by confinement,
-    bond energies evaluated).
-    """
-    bond_e = bond_energies(pos, ori, bond_i, bond_j, kbar, rest, delta)
-    slot_e = bond_e[cell_bonds]
-    rng_state = np.empty(1, dtype=np.uint64)
-    rng_state[0] = np.uint64(seed) | np.uint64(1)
-    temp_energy = np.array([t_init, bond_e.sum()])
-    counts = np.zeros(8, dtype=np.int64)
-    decay = math.exp(-math.log(t_ratio) / max(n_trials, 1))
-    anneal_segment(pos, ori, mobile, cell_ptr, nbr_other, nbr_rest, nbr_kbar, twin, delta, phi,
-                   phi_x0, phi_y0, phi_h, posts, depth, slot_e, rng_state, amp, temp_energy,
-                   counts, 0, n_trials, decay, np.empty(max_degree(cell_ptr)))
-    return temp_energy[1], counts[0], counts[1], counts[2], counts[3]
+
+@numba.njit(cache=True, inline="always")
+def _close_half_sweep(strips, strip_de, strip_counts, temp_energy, counts, sweep_counts):
+    """Add the strips' energy changes and counters in strip order (the same bits whatever the
+    threads did)."""
+    for i in range(len(strips)):
+        s = strips[i]
+        temp_energy[1] += strip_de[s]
+        for a in range(_N_COUNTS):
+            counts[a] += strip_counts[s, a]
+        sweep_counts[0] += strip_counts[s, 4]  # tried position moves
+        sweep_counts[1] += strip_counts[s, 5]  # tried orientation moves
+        sweep_counts[2] += strip_counts[s, 0]
+        sweep_counts[3] += strip_counts[s, 1]
+
+
+@numba.njit(cache=True, inline="always")
+def _adapt(amp, sweep_counts, temp):
+    """After a sweep: each amplitude up by ADAPT_FACTOR if its acceptance beat the target,
+    down otherwise; never past the one that reaches its step cap at this temperature."""
+    cap_scale = 1.0 / math.sqrt(temp) if temp > 0.0 else math.inf
+    if sweep_counts[0] > 0:
+        up = sweep_counts[2] > TARGET_ACCEPT * sweep_counts[0]
+        amp[0] = amp[0] * ADAPT_FACTOR if up else amp[0] / ADAPT_FACTOR
+        amp[0] = min(amp[0], MAX_STEP_POS * cap_scale)
+    if sweep_counts[1] > 0:
+        up = sweep_counts[3] > TARGET_ACCEPT * sweep_counts[1]
+        amp[1] = amp[1] * ADAPT_FACTOR if up else amp[1] / ADAPT_FACTOR
+        amp[1] = min(amp[1], MAX_STEP_ORI * cap_scale)
+    sweep_counts[:] = 0
+
+
+# The sweep loop, twice: one thread, and the strips of a colour in parallel (numba's prange).
+# Both call the same per-strip kernel and close each half sweep in strip order, so they give
+# the same bits; the serial one skips the threads' start-up on small moulds.
+
+@numba.njit(cache=True, error_model="numpy")
+def _sweeps_serial(state, cell_ptr, other, rest_a, rest_b, half_kbar, strip_ptr,
+                   strip_cells, colour0, colour1, phi, phi_x0, phi_y0, phi_h, posts, depth,
+                   rng, amp, temp_energy, counts, n_sweeps, decay, adapt, buf,
+                   strip_de, strip_counts):
+    sweep_counts = np.zeros(4, dtype=np.int64)
+    for _ in range(n_sweeps):
+        for colour in range(2):
+            strips = colour0 if colour == 0 else colour1
+            temp = temp_energy[0]
+            step_pos = min(amp[0] * math.sqrt(temp), MAX_STEP_POS)
+            step_ori = min(amp[1] * math.sqrt(temp), MAX_STEP_ORI)
+            for i in range(len(strips)):
+                _strip_visits(strips[i], state, cell_ptr, other, rest_a, rest_b, half_kbar,
+                              strip_ptr, strip_cells, phi, phi_x0, phi_y0, phi_h, posts,
+                              depth, rng, temp, step_pos, step_ori, strip_de,
+                              strip_counts, buf)
+            _close_half_sweep(strips, strip_de, strip_counts, temp_energy, counts, sweep_counts)
+            temp_energy[0] = temp * decay
+        if adapt:
+            _adapt(amp, sweep_counts, temp_energy[0])
+
+
+@numba.njit(cache=True, parallel=True, error_model="numpy")
+def _sweeps_parallel(state, cell_ptr, other, rest_a, rest_b, half_kbar, strip_ptr,
+                     strip_cells, colour0, colour1, phi, phi_x0, phi_y0, phi_h, posts, depth,
+                     rng, amp, temp_energy, counts, n_sweeps, decay, adapt, buf,
+                     strip_de, strip_counts):
+    sweep_counts = np.zeros(4, dtype=np.int64)
+    for _ in range(n_sweeps):
+        for colour in range(2):
+            strips = colour0 if colour == 0 else colour1
+            temp = temp_energy[0]
+            step_pos = min(amp[0] * math.sqrt(temp), MAX_STEP_POS)
+            step_ori = min(amp[1] * math.sqrt(temp), MAX_STEP_ORI)
+            for i in numba.prange(len(strips)):
+                _strip_visits(strips[i], state, cell_ptr, other, rest_a, rest_b, half_kbar,
+                              strip_ptr, strip_cells, phi, phi_x0, phi_y0, phi_h, posts,
+                              depth, rng, temp, step_pos, step_ori, strip_de,
+                              strip_counts, buf)
+            _close_half_sweep(strips, strip_de, strip_counts, temp_energy, counts, sweep_counts)
+            temp_energy[0] = temp * decay
+        if adapt:
+            _adapt(amp, sweep_counts, temp_energy[0])
+
+
+def available_threads() -> int:
+    """The CPUs this process may use (its affinity: a SLURM job's own share)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not Linux
+        return os.cpu_count() or 1
 
 
 class AnnealRun:
-    """A resumable anneal: every piece of its state (positions, orientations, cached bond
-    energies, the random stream, the temperature, the step amplitudes and the counters), so
-    that it can be advanced in segments, saved to a checkpoint file between them and resumed
-    in another process, bit-identical to one uninterrupted `anneal`.
+    """A resumable anneal: every piece of its state (positions and orientations, the random
+    streams, the temperature, the step amplitudes and the counters), so
+    that it can be advanced in whole sweeps, saved to a checkpoint file between them and
+    resumed in another process, bit-identical to one uninterrupted `anneal`, on any number of
+    threads.
 
     The checkpoint is an .npz written atomically (a temporary file, then a rename). It records
-    what the run is (`key`: cells, trials, schedule, seed and a fingerprint of the lattice);
-    `load` refuses a checkpoint of another run, naming the value that differs.
+    what the run is (`key`: kernel, cells, sweeps, schedule, seed and a fingerprint of the
+    lattice); `load` refuses a checkpoint of another run, naming the value that differs.
     """
 
     def __init__(self, lattice, positions, orientations, budget: float, seed_seq,
                  t_init: float = T_INIT, t_ratio: float = T_RATIO, delta: float = DELTA,
-                 adapt: bool = True):
+                 adapt: bool = True, threads: int = 1):
         if not np.isfinite(budget) or budget < 0:
             raise ValueError(f"anneal budget must be a non-negative number of moves per cell, "
                              f"got {budget}")
         self.lattice = lattice
-        self.pos = np.array(positions, dtype=np.float64, order="C")
-        self.ori = np.array(orientations, dtype=np.float64, order="C")
-        self.mobile = np.flatnonzero(~lattice.fixed).astype(np.int64)
-        self.n_trials = int(round(budget * len(self.mobile)))
+        self.layout = Layout.of(lattice, delta)
+        self.state = pack_state(np.asarray(positions, dtype=np.float64),
+                                np.asarray(orientations, dtype=np.float64))
+        self.n_mobile = int(np.count_nonzero(~lattice.fixed))
+        # a sweep is two moves a cell (each cell visited once on average)
+        self.n_sweeps = 0 if budget == 0 else max(1, int(round(budget / MOVES_PER_SWEEP)))
+        self.n_trials = MOVES_PER_SWEEP * self.n_sweeps * self.n_mobile
         self.seed = int(np.random.default_rng(seed_seq).integers(1, 2**63 - 1))
         self.t_init, self.t_ratio, self.delta = float(t_init), float(t_ratio), float(delta)
         self.budget = float(budget)
-        self.adapt = bool(adapt)  # False: fixed step amplitudes (`anneal_segment`)
-        self.neighbours = neighbour_lists(lattice)
-        bond_e = bond_energies(self.pos, self.ori, lattice.bond_i, lattice.bond_j,
-                               lattice.bond_kbar, lattice.bond_rest, self.delta)
-        self.slot_e = bond_e[lattice.cell_bonds]
-        self.rng_state = np.array([np.uint64(self.seed) | np.uint64(1)], dtype=np.uint64)
+        self.adapt = bool(adapt)  # False: fixed step amplitudes
+        self.threads = max(1, int(threads))
+        self.rng = _stream_seeds(self.seed, self.layout.n_strips)
         self.amp = np.array([INIT_AMP_POS, INIT_AMP_ORI])
-        self.temp_energy = np.array([self.t_init, _kernel_sum(bond_e)])
-        self.counts = np.zeros(8, dtype=np.int64)
-        self.trial = 0
+        self.temp_energy = np.array([self.t_init, self.energy()])
+        # accepted position and orientation moves, rejected by confinement, bond energies
+        # evaluated, tried position and orientation moves
+        self.counts = np.zeros(_N_COUNTS, dtype=np.int64)
+        self.sweep = 0
         self.cpu_seconds = 0.0  # process time spent in advance(), over every resumption
         self.resumed_seconds = 0.0  # of which in earlier processes (read from a checkpoint)
-        self._scratch = np.empty(int(max_degree(lattice.cell_ptr)))
+        n = self.layout.n_strips
+        self._buf = np.empty((n, 8, self.layout.max_degree))
+        self._strip_de = np.zeros(n)
+        self._strip_counts = np.zeros((n, _N_COUNTS), dtype=np.int64)
+
+    @property
+    def pos(self) -> np.ndarray:
+        """The positions (N, 3), a copy."""
+        return np.ascontiguousarray(self.state[:, 0:3])
+
+    @property
+    def ori(self) -> np.ndarray:
+        """The orientations (N, 3), a copy."""
+        return np.ascontiguousarray(self.state[:, 4:7])
 
     @property
     def done(self) -> bool:
-        return self.trial >= self.n_trials
+        return self.sweep >= self.n_sweeps
 
     @property
     def fraction(self) -> float:
-        return self.trial / self.n_trials if self.n_trials else 1.0
+        return self.sweep / self.n_sweeps if self.n_sweeps else 1.0
 
     @property
     def temperature(self) -> float:
-        """The temperature of the next trial."""
+        """The temperature of the next half sweep."""
         return float(self.temp_energy[0])
+
+    @property
+    def decay(self) -> float:
+        """The factor T falls by after each half sweep."""
+        return math.exp(-math.log(self.t_ratio) / max(2 * self.n_sweeps, 1))
 
     def key(self) -> dict:
         """What this run is; a checkpoint of any other run is refused."""
@@ -321,60 +537,63 @@ class AnnealRun:
         for array in (lat.positions, lat.fixed, lat.bond_i, lat.bond_j, lat.bond_rest,
                       lat.bond_kbar):
             digest.update(np.ascontiguousarray(array).tobytes())
-        return {"kernel": KERNEL, "n_cells": int(lat.n_cells), "n_trials": self.n_trials, "budget": self.budget,
-                "seed": self.seed, "t_init": self.t_init, "t_ratio": self.t_ratio,
-                "delta": self.delta, "adapt": self.adapt, "lattice_sha256": digest.hexdigest()}
+        return {"kernel": KERNEL, "n_cells": int(lat.n_cells), "n_sweeps": self.n_sweeps,
+                "budget": self.budget, "seed": self.seed, "t_init": self.t_init,
+                "t_ratio": self.t_ratio, "delta": self.delta, "adapt": self.adapt,
+                "strip_width": STRIP_WIDTH, "lattice_sha256": digest.hexdigest()}
 
-    def advance(self, n_trials: int | None = None) -> None:
-        """Run the next `n_trials` trials (None: all that are left)."""
-        stop = self.n_trials if n_trials is None else min(self.trial + int(n_trials),
-                                                          self.n_trials)
-        if stop <= self.trial:
+    def advance(self, n_sweeps: int | None = None) -> None:
+        """Run the next `n_sweeps` sweeps (None: all that are left)."""
+        left = self.n_sweeps - self.sweep
+        n = left if n_sweeps is None else min(int(n_sweeps), left)
+        if n <= 0:
             return
-        region = self.lattice.region
+        lay, region = self.layout, self.lattice.region
+        args = (self.state, lay.cell_ptr, lay.other, lay.rest_a, lay.rest_b, lay.half_kbar,
+                lay.strip_ptr, lay.strip_cells, lay.colours[0], lay.colours[1],
+                region.phi, region.phi_x0, region.phi_y0, region.phi_h, region.posts,
+                region.depth, self.rng, self.amp, self.temp_energy, self.counts,
+                n, self.decay, self.adapt, self._buf, self._strip_de, self._strip_counts)
+        threads = min(self.threads, numba.config.NUMBA_NUM_THREADS, lay.n_strips // 2 or 1)
         t0 = time.process_time()
-        decay = math.exp(-math.log(self.t_ratio) / max(self.n_trials, 1))
-        anneal_segment(self.pos, self.ori, self.mobile, self.lattice.cell_ptr, *self.neighbours,
-                       self.delta, region.phi, region.phi_x0, region.phi_y0, region.phi_h,
-                       region.posts, region.depth, self.slot_e, self.rng_state, self.amp,
-                       self.temp_energy, self.counts, self.trial, stop, decay, self._scratch,
-                       self.adapt)
-        self.trial = stop
+        if threads <= 1:
+            _sweeps_serial(*args)
+        else:
+            before = numba.get_num_threads()
+            numba.set_num_threads(threads)
+            try:
+                _sweeps_parallel(*args)
+            finally:
+                numba.set_num_threads(before)
+        self.sweep += n
         self.cpu_seconds += time.process_time() - t0
 
     def set_state(self, positions, orientations) -> None:
         """Take new positions and orientations (e.g. after a relaxation of the positions),
         with their bond energies and the running energy recomputed."""
-        lat = self.lattice
-        self.pos[...] = positions
-        self.ori[...] = orientations
-        bond_e = bond_energies(self.pos, self.ori, lat.bond_i, lat.bond_j, lat.bond_kbar,
-                               lat.bond_rest, self.delta)
-        self.slot_e[...] = bond_e[lat.cell_bonds]
-        self.temp_energy[1] = _kernel_sum(bond_e)
+        self.state[:, 0:3] = positions
+        self.state[:, 4:7] = orientations
+        self.temp_energy[1] = self.energy()
+
+    def energy(self) -> float:
+        """The energy of the present state, recomputed (the running energy drifts from it by
+        round-off only)."""
+        lay = self.layout
+        return float(total_energy(self.state, lay.cell_ptr, lay.other, lay.rest_a, lay.rest_b,
+                                  lay.half_kbar))
 
     def save(self, path) -> None:
         """Write the whole state to `path` atomically."""
         path = Path(path)
         path.parent.mkdir(parents=True, exist_ok=True)
         tmp = path.with_name(path.name + ".tmp")
-        # The cached bond energies are kept as their bits XOR those recomputed from the state:
-        # 97% zero on a 1e6 run of mould 468, whose checkpoint shrinks from 872 to 121 KB
-        # (small enough to commit at a session's end), and the resume stays bit-identical.
-        slot_xor = self.slot_e.view(np.uint64) ^ self._recomputed_slots().view(np.uint64)
         with open(tmp, "wb") as fh:
             np.savez_compressed(fh, key=np.array(json.dumps(self.key())),
-                                trial=np.int64(self.trial),
+                                sweep=np.int64(self.sweep),
                                 cpu_seconds=np.float64(self.cpu_seconds),
-                                pos=self.pos, ori=self.ori, slot_xor=slot_xor,
-                                rng_state=self.rng_state, amp=self.amp,
-                                temp_energy=self.temp_energy, counts=self.counts)
+                                pos=self.pos, ori=self.ori, rng=self.rng,
+                                amp=self.amp, temp_energy=self.temp_energy, counts=self.counts)
         os.replace(tmp, path)
-
-    def _recomputed_slots(self) -> np.ndarray:
-        lat = self.lattice
-        return bond_energies(self.pos, self.ori, lat.bond_i, lat.bond_j, lat.bond_kbar,
-                             lat.bond_rest, self.delta)[lat.cell_bonds]
 
     def load(self, path) -> None:
         """Take the state saved in `path`; ValueError (naming the file and the value) when it
@@ -383,43 +602,44 @@ class AnnealRun:
         try:
             with np.load(path, allow_pickle=False) as data:
                 key = json.loads(str(data["key"]))
-                state = {name: data[name] for name in
-                         ("pos", "ori", "rng_state", "amp", "temp_energy", "counts")}
-                # slot_e itself in a checkpoint written before slot_xor
-                slot = data["slot_xor"] if "slot_xor" in data.files else data["slot_e"]
-                slot_is_xor = "slot_xor" in data.files
-                trial = int(data["trial"])
-                cpu_seconds = float(data["cpu_seconds"])
+                saved = {name: data[name] for name in data.files if name != "key"}
         except Exception as err:  # zipfile, KeyError and JSON errors alike
             raise ValueError(f"{path} is not a readable anneal checkpoint "
                              f"({type(err).__name__}: {err}); delete it to start over") from err
-        mine = self.key()
-        for name, value in mine.items():
+        if key.get("kernel") != KERNEL:
+            raise ValueError(f"{path} is the checkpoint of an anneal by kernel "
+                             f"{key.get('kernel')!r}, not this one ({KERNEL!r}), which samples "
+                             "in another order; delete it to start over")
+        for name, value in self.key().items():
             if key.get(name) != value:
                 raise ValueError(f"{path} is the checkpoint of another anneal: its {name} is "
                                  f"{key.get(name)!r}, this run's {value!r}; delete it or "
                                  "choose another checkpoint path")
-        for name, value in state.items():
-            if value.shape != getattr(self, name).shape:
-                raise ValueError(f"{path}: {name} has shape {value.shape}, expected "
-                                 f"{getattr(self, name).shape} (truncated?)")
-            getattr(self, name)[...] = value
-        if slot.shape != self.slot_e.shape:
-            raise ValueError(f"{path}: the bond energies have shape {slot.shape}, expected "
-                             f"{self.slot_e.shape} (truncated?)")
-        self.slot_e[...] = ((slot ^ self._recomputed_slots().view(np.uint64)).view(np.float64)
-                            if slot_is_xor else slot)
-        self.trial = trial
-        self.cpu_seconds = self.resumed_seconds = cpu_seconds
+        expected = {"pos": (self.lattice.n_cells, 3), "ori": (self.lattice.n_cells, 3),
+                    "rng": self.rng.shape, "amp": self.amp.shape,
+                    "temp_energy": self.temp_energy.shape, "counts": self.counts.shape,
+                    "sweep": (), "cpu_seconds": ()}
+        for name, shape in expected.items():
+            if name not in saved or saved[name].shape != shape:
+                found = saved[name].shape if name in saved else "nothing"
+                raise ValueError(f"{path}: {name} has shape {found}, expected {shape} "
+                                 "(truncated?); delete it to start over")
+        self.state[:, 0:3] = saved["pos"]
+        self.state[:, 4:7] = saved["ori"]
+        for name in ("rng", "amp", "temp_energy", "counts"):
+            getattr(self, name)[...] = saved[name]
+        self.sweep = int(saved["sweep"])
+        self.cpu_seconds = self.resumed_seconds = float(saved["cpu_seconds"])
 
     def info(self) -> dict:
         """The JSON-safe summary `anneal` returns."""
-        acc_pos, acc_ori, n_outside, bonds_evaluated = (int(c) for c in self.counts[:4])
+        acc_pos, acc_ori, n_outside, bonds_evaluated, tried_pos, tried_ori = (
+            int(c) for c in self.counts)
         t_final = self.t_init / self.t_ratio
         return {
-            "anneal_trials": self.n_trials,
-            "anneal_accept_pos": acc_pos / max(self.n_trials / 2, 1),
-            "anneal_accept_ori": acc_ori / max(self.n_trials / 2, 1),
+            "anneal_trials": int(MOVES_PER_SWEEP * self.sweep * self.n_mobile),
+            "anneal_accept_pos": acc_pos / max(tried_pos, 1),
+            "anneal_accept_ori": acc_ori / max(tried_ori, 1),
             "anneal_rejected_outside": n_outside,
             "anneal_bonds_evaluated": bonds_evaluated,
             "anneal_evaluations": float(bonds_evaluated / max(self.lattice.n_bonds, 1)),
@@ -434,7 +654,7 @@ class AnnealRun:
 def anneal(
     lattice, positions, orientations, budget: float, seed_seq, t_init: float = T_INIT,
     t_ratio: float = T_RATIO, delta: float = DELTA, checkpoint=None,
-    checkpoint_seconds: float = CHECKPOINT_SECONDS, log=None,
+    checkpoint_seconds: float = CHECKPOINT_SECONDS, log=None, threads: int = 1,
 ) -> tuple[np.ndarray, np.ndarray, dict]:
     """Anneal copies of (positions, orientations) with `budget` moves per mobile cell.
 
@@ -442,11 +662,13 @@ def anneal(
     checkpoint: a file path. The run resumes from it when it exists (a checkpoint of another
     run is refused), and saves its state there every `checkpoint_seconds` of wall time and
     at the end, so that a long anneal killed at any moment loses at most that much work.
-    The result is bit-identical with or without checkpoints and interruptions.
+    The result is bit-identical with or without checkpoints and interruptions, and whatever
+    `threads` (the strips of a colour run in parallel on that many threads).
     log: a callable taking one progress line (about every `checkpoint_seconds`).
     Returns (positions, orientations, info) with info JSON-safe.
     """
-    run = AnnealRun(lattice, positions, orientations, budget, seed_seq, t_init, t_ratio, delta)
+    run = AnnealRun(lattice, positions, orientations, budget, seed_seq, t_init, t_ratio, delta,
+                    threads=threads)
     if checkpoint is None:
         run.advance()
     else:
@@ -455,8 +677,7 @@ def anneal(
             run.load(checkpoint)
             if log is not None and not run.done:
                 log(f"{checkpoint.name}: resumed at {run.fraction:.1%}")
-        n_mobile = max(len(run.mobile), 1)
-        chunk = n_mobile * max(1, run.n_trials // (n_mobile * CHECKPOINT_CHUNKS))
+        chunk = max(1, run.n_sweeps // CHECKPOINT_CHUNKS)
         last = time.monotonic()
         while not run.done:
             run.advance(chunk)
@@ -464,7 +685,7 @@ def anneal(
                 run.save(checkpoint)
                 last = time.monotonic()
                 if log is not None:
-                    log(f"{checkpoint.name}: {run.fraction:.1%} of {run.n_trials:,} trials, "
+                    log(f"{checkpoint.name}: {run.fraction:.1%} of {run.n_sweeps:,} sweeps, "
                         f"T {run.temperature:.3g}, E/cell "
                         f"{run.temp_energy[1] / lattice.n_cells:.6f}")
         if not checkpoint.exists():
@@ -473,9 +694,10 @@ def anneal(
 
 
 def relaxed_anneal(lattice, positions, orientations, seed_seq, t_hi: float, t_lo: float,
-                   segments: int, sweeps: int, relax_evaluations: int, delta: float = DELTA
-                   ) -> tuple[np.ndarray, np.ndarray, dict]:
-    """An anneal from t_hi to t_lo (exponential, `segments` x `sweeps` moves a cell) whose
+                   segments: int, moves: int, relax_evaluations: int, delta: float = DELTA,
+                   threads: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
+    """An anneal from t_hi to t_lo (exponential, `segments` x `moves` moves a cell; `moves`
+    a whole number of sweeps, MOVES_PER_SWEEP moves a cell each) whose
     positions are relaxed by L-BFGS (positions only, `relax_evaluations` evaluations) after
     every segment: Metropolis samples the orientations and the local position fluctuations,
     the relaxation carries the long-wavelength elastic modes that single-cell moves relax
@@ -483,12 +705,14 @@ def relaxed_anneal(lattice, positions, orientations, seed_seq, t_hi: float, t_lo
     `anneal` and relax_evaluations spent."""
     from condor.model.lbfgs import minimise_lbfgs  # the minimiser's floor is beside this one
 
-    run = AnnealRun(lattice, positions, orientations, segments * sweeps, seed_seq, t_hi,
-                    t_hi / t_lo, delta)
-    n_mobile = len(run.mobile)
+    if moves % MOVES_PER_SWEEP or moves <= 0:
+        raise ValueError(f"moves between relaxations must be a positive multiple of "
+                         f"{MOVES_PER_SWEEP} (a sweep), got {moves}")
+    run = AnnealRun(lattice, positions, orientations, segments * moves, seed_seq, t_hi,
+                    t_hi / t_lo, delta, threads=threads)
     relax = 0
     for _ in range(segments):
-        run.advance(sweeps * n_mobile)
+        run.advance(moves // MOVES_PER_SWEEP)
         if relax_evaluations > 0:
             pos, ori, info = minimise_lbfgs(lattice, run.pos, run.ori, relax_evaluations, 0.0,
                                             delta=delta, positions_only=True)

@@ -17,7 +17,7 @@ and default of `budget` (DEFAULT_BUDGET) and `ftol` (DEFAULT_FTOL):
   * "relaxed_anneal" (the default, DEFAULT_SOLVER = FAITHFUL_SOLVER):
                 `condor.model.anneal.relaxed_anneal` over the temperatures where the
                 orientation order forms (RELAXED_WINDOW), its positions relaxed by L-BFGS after
-                every RELAXED_SWEEPS sweeps (RELAXED_RELAX evaluations), then L-BFGS to ftol;
+                every RELAXED_MOVES moves a cell (RELAXED_RELAX evaluations), then L-BFGS to ftol;
                 budget = its moves per cell. It samples the paper's annealed ensemble at 1.7x
                 the quench's evaluations (docs/model.md, "The paper's CONDOR, and a fast
                 sampler of it").
@@ -71,7 +71,7 @@ DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
 DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
                 "hybrid": minimise_mod.FTOL, "relaxed_anneal": lbfgs_mod.FTOL}
 RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
-RELAXED_SWEEPS = 10  # sweeps between two relaxations of the positions
+RELAXED_MOVES = 10  # moves a cell between two relaxations of the positions (5 sweeps)
 RELAXED_RELAX = 40  # L-BFGS evaluations of each relaxation
 ESCAPE_TOL = 0.25  # l0
 FOLD_FRACTION = 0.01  # of tetrahedra
@@ -157,23 +157,27 @@ def warm_up() -> None:
 
 
 def simulate(polygon, tethers, depth: float, solver: str | None = DEFAULT_SOLVER,
-             budget: float | None = None, seed: int = 0, ftol: float | None = None) -> SimResult:
+             budget: float | None = None, seed: int = 0, ftol: float | None = None,
+             threads: int = 1) -> SimResult:
     """Simulate one mould (polygon and tethers (n, 3) x, y, radius in l0; depth in l0).
 
     ftol: the minimiser's force tolerance, kappa0 l0 (None: DEFAULT_FTOL[solver]); ignored by
     "anneal".
     solver None: DEFAULT_SOLVER.
+    threads: the anneal's (the same result on any number; `condor.model.anneal`).
     """
     solver = solver or DEFAULT_SOLVER
     _check_solver(solver, budget, ftol)
     lattice = build_lattice(polygon, tethers, depth)  # validates the rest
     orientations = random_orientations(lattice.n_cells, np.random.default_rng([int(seed), 1]))
-    return simulate_lattice(lattice, lattice.positions, orientations, solver, budget, seed, ftol)
+    return simulate_lattice(lattice, lattice.positions, orientations, solver, budget, seed, ftol,
+                            threads=threads)
 
 
 def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | None = DEFAULT_SOLVER,
                      budget: float | None = None, seed: int = 0,
-                     ftol: float | None = None, checkpoint=None, log=None) -> SimResult:
+                     ftol: float | None = None, checkpoint=None, log=None,
+                     threads: int = 1) -> SimResult:
     """Run a solver on `lattice` from a given start state (positions, orientations (N, 3)).
 
     `simulate` starts from the lattice with random orientations; this entry point serves
@@ -210,7 +214,7 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | No
     try:
         pos, ori, info = _solve(lattice, pos0, ori0, solver, used_budget, seed,
                                 DEFAULT_FTOL[solver] if ftol is None else float(ftol),
-                                checkpoint, log)
+                                checkpoint, log, threads)
     except ZeroDivisionError:  # numba's 1/|l| on a bond that collapsed to zero length
         pos, ori, info = np.full_like(pos0, np.nan), ori0, {"error": "zero-length bond"}
     seconds = time.process_time() - t0
@@ -249,18 +253,18 @@ def _check_solver(solver: str, budget, ftol) -> None:
 
 
 def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ftol: float,
-           checkpoint=None, log=None):
+           checkpoint=None, log=None, threads: int = 1):
     """Run one solver from (pos, ori); return (positions, orientations, info)."""
     info = {}
     if solver in ("anneal", "hybrid"):
         pos, ori, info_a = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
-                                             checkpoint=checkpoint, log=log)
+                                             checkpoint=checkpoint, log=log, threads=threads)
         info.update(info_a)
     if solver == "relaxed_anneal":
-        segments = max(1, int(round(budget / RELAXED_SWEEPS)))
+        segments = max(1, int(round(budget / RELAXED_MOVES)))
         pos, ori, info_a = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2],
-                                                     *RELAXED_WINDOW, segments, RELAXED_SWEEPS,
-                                                     RELAXED_RELAX)
+                                                     *RELAXED_WINDOW, segments, RELAXED_MOVES,
+                                                     RELAXED_RELAX, threads=threads)
         info.update(info_a)
         pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori, lbfgs_mod.MAX_ITER, ftol)
         info.update(info_m)
