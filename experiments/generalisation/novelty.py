@@ -1,0 +1,136 @@
+"""Which novelty score tells a surrogate's bad moulds: the three of condor.surrogate.novelty
+(feature distance, transform disagreement, descriptor distance), computed for every model of
+run.py on every test mould, against whether the model's error on the mould exceeds one
+simulation's scatter (moulds.csv: squared_error > noise).
+
+  python experiments/generalisation/novelty.py --pool results/generalisation_pool/dataset.zarr \\
+      --fresh results/generalisation_fresh/dataset.zarr
+
+writes novelty_moulds.csv (every model x test mould: the scores beside the error) and
+novelty.csv (per score: AUROC over the held-out families' and the other test moulds, the share
+of bad moulds flagged at the threshold that raises at most 20% false alarms, and at the
+threshold of 90% caught the false alarms). Cached under --cache (run.py's).
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from pathlib import Path
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+
+import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+
+from condor.data.dataset import mould_geometry  # noqa: E402
+from condor.data.store import open_store  # noqa: E402
+from condor.moulds.mould import Mould  # noqa: E402
+from condor.surrogate import novelty  # noqa: E402
+from condor.surrogate.predict import Predictor  # noqa: E402
+from condor.surrogate.samples import model_inputs  # noqa: E402
+
+HERE = Path(__file__).resolve().parent
+sys.path.insert(0, str(HERE))
+import run as study  # noqa: E402
+
+
+def log(line: str) -> None:
+    print(f"{time.strftime('%H:%M:%S')} {line}", flush=True)
+
+
+def geometry_descriptors(ds, ids) -> np.ndarray:
+    box = float(ds.attrs["scene"]["box"])
+    out = []
+    for m in ids:
+        polygon, tethers = mould_geometry(ds, int(m))
+        out.append(novelty.descriptors(Mould(box=box, polygon=polygon, tethers=tethers)))
+    return np.array(out)
+
+
+def scores_of(predictor: Predictor, ds, ids, cache: Path, tag: str) -> dict:
+    """features, disagreement and descriptors of moulds `ids` of ds for one checkpoint."""
+    path = cache / f"{Path(predictor.path).stem}_novelty_{tag}.npz"
+    if path.exists():
+        with np.load(path) as data:
+            return dict(data)
+    position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
+    pos = [position[int(m)] for m in ids]
+    masks = model_inputs(ds, pos, "mask")
+    lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
+    x = novelty.network_inputs(predictor, masks, lattice)
+    feats = novelty.features(predictor, x)
+    tissue = masks.max(axis=1) > 0
+    n_cells = np.asarray(ds["n_cells"].values)[pos]
+    dis = novelty.disagreement(predictor, x, n_cells, tissue)
+    out = {"features": feats, "disagreement": dis, "descriptors": geometry_descriptors(ds, ids)}
+    np.savez(path, **out)
+    return out
+
+
+def flagging(score: np.ndarray, bad: np.ndarray) -> dict:
+    """AUROC of `score` for `bad`, the share of bad caught at <= 20% false alarms, and the
+    false alarms at >= 90% caught."""
+    order = np.argsort(-score)
+    bad_sorted = bad[order]
+    tp = np.cumsum(bad_sorted) / max(bad.sum(), 1)
+    fp = np.cumsum(~bad_sorted) / max((~bad).sum(), 1)
+    auroc = float(np.trapezoid(np.concatenate([[0], tp]), np.concatenate([[0], fp])))
+    caught = float(tp[fp <= 0.2].max(initial=0.0))
+    alarms = float(fp[tp >= 0.9].min(initial=1.0))
+    return {"auroc": auroc, "caught_at_20pct_false_alarms": caught,
+            "false_alarms_at_90pct_caught": alarms, "n_bad": int(bad.sum()),
+            "n_good": int((~bad).sum())}
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--pool", type=Path, required=True)
+    ap.add_argument("--fresh", type=Path, required=True)
+    ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/condor/generalisation")
+    ap.add_argument("--out", type=Path, default=HERE)
+    ap.add_argument("--lab-share", type=float, default=0.5)
+    a = ap.parse_args(argv)
+    ds, fresh = open_store(a.pool), open_store(a.fresh)
+    per = pd.read_csv(a.out / "moulds.csv")
+    rows = []
+    for name, spec in study.models(ds, a.lab_share).items():
+        checkpoints = sorted(a.cache.glob(f"{name}_*.pt"))
+        if not checkpoints:
+            continue
+        predictor = Predictor(checkpoints[-1], device="cpu", precision="float32")
+        held = None if spec["held_out"] == "none" else spec["held_out"]
+        train_ids = study.choose(ds, "train", study.N_TRAIN, spec["lab_share"], held)
+        bank = scores_of(predictor, ds, train_ids, a.cache, "train")
+        mine = per[per["model"] == name]
+        for group, store in (("pool", ds), ("fresh", fresh)):
+            subset = mine[mine["family"].eq(study.FRESH) == (group == "fresh")]
+            if subset.empty:
+                continue
+            s = scores_of(predictor, store, subset["mould"].to_numpy(), a.cache, group)
+            part = subset.copy()
+            part["feature_distance"] = novelty.knn_distance(bank["features"], s["features"])
+            part["disagreement"] = s["disagreement"]
+            part["descriptor_distance"] = novelty.knn_distance(bank["descriptors"],
+                                                               s["descriptors"])
+            rows.append(part)
+        log(f"novelty of {name}")
+    table = pd.concat(rows, ignore_index=True)
+    table["bad"] = table["squared_error"] > table["noise"]
+    table["held_out_mould"] = table["family"] == table["held_out"]
+    table.to_csv(a.out / "novelty_moulds.csv", index=False)
+    summary = []
+    for scope, frame in (("every model x test mould", table),
+                         ("leave-one-out models", table[table["held_out"] != "none"])):
+        for score in ("feature_distance", "disagreement", "descriptor_distance"):
+            summary.append({"scope": scope, "score": score,
+                            **flagging(frame[score].to_numpy(), frame["bad"].to_numpy())})
+    pd.DataFrame(summary).to_csv(a.out / "novelty.csv", index=False)
+    print(pd.DataFrame(summary).to_string(index=False))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,153 @@
+"""How new a mould is to a trained surrogate, measured three ways (experiments/generalisation
+chose among them by how well each flags the moulds whose error exceeds one simulation's scatter):
+
+- `features`: the network's bottleneck (the encoder's deepest activations, averaged over the
+  grid and the 8 planar transforms the prediction symmetrises over), one vector a mould;
+  `feature_distance`: the mean distance of a mould's vector to its k nearest among the training
+  moulds', over the training moulds' own (leave-one-out) distance, so 1 is typical of them;
+- `disagreement`: how much the 8 planar transforms' predictions, moved back, disagree: the
+  RMS over transforms and tissue pixels of their difference from their mean, over the mean's
+  RMS there (0 for a network exactly equivariant on this mould);
+- `descriptors`: a mould's geometry in a few numbers (area, perimeter, extent, posts, their
+  radii and spacing, holes), and `descriptor_distance` as `feature_distance` over them.
+
+A checkpoint trained by condor carries its training moulds' feature vectors and descriptors
+(`condor.surrogate.train` stores them: `bank`), so `condor predict` scores a new mould alone.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import shapely
+import torch
+
+from condor.data.inputs import stress_channels
+
+from .inference import decode, run_network
+from .samples import INPUT_VARIABLES, N_SYMMETRIES, apply_symmetry, resample_inputs
+
+PLANAR = N_SYMMETRIES // 2
+K_NEAREST = 5
+DESCRIPTORS = ("area", "perimeter_ratio", "extent", "aspect", "n_posts", "post_radius_max",
+               "post_radius_min", "post_spacing", "post_to_wall", "post_area", "holes",
+               "hole_area")
+
+
+def network_inputs(predictor, masks: np.ndarray, lattice=None) -> np.ndarray:
+    """The network's input channels (S, C, H, W) at the native grid for masks (S, 2, H, W),
+    as `Predictor.__call__` assembles them (lattice given when the network reads it)."""
+    by_variable = {"inputs": masks, "lattice": lattice}
+    for name in ("stress", "stress_tensor"):
+        if name in INPUT_VARIABLES[predictor.inputs_kind]:
+            by_variable[name] = stress_channels(masks, name == "stress_tensor")
+    return np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
+                           for name in INPUT_VARIABLES[predictor.inputs_kind]], axis=1)
+
+
+def _moved(predictor, x: np.ndarray) -> list[torch.Tensor]:
+    size = predictor.model.cfg.size
+    x = resample_inputs(np.asarray(x, dtype=np.float32), size, predictor.inputs_kind)
+    t = torch.from_numpy(np.ascontiguousarray(x))
+    return [apply_symmetry(k, inputs=t, input_kind=predictor.inputs_kind)[0]
+            for k in range(PLANAR)]
+
+
+def features(predictor, x: np.ndarray, batch_size: int = 4) -> np.ndarray:
+    """(S, C) bottleneck vectors of network inputs x (S, C_in, H, W) (`network_inputs`): the
+    deepest encoder block's output averaged over its grid and the 8 planar transforms."""
+    model = predictor.model.eval()
+    captured = []
+    hook = model.down[-1].register_forward_hook(
+        lambda module, args, out: captured.append(out.float().mean(dim=(-2, -1))))
+    out = []
+    try:
+        with torch.inference_mode():
+            for start in range(0, len(x), batch_size):
+                captured.clear()
+                moved = _moved(predictor, x[start:start + batch_size])
+                run_network(model, torch.cat(moved))
+                vectors = captured[0].reshape(PLANAR, -1, captured[0].shape[-1])
+                out.append(vectors.mean(dim=0).numpy())
+    finally:
+        hook.remove()
+    return np.concatenate(out).astype(np.float64)
+
+
+def disagreement(predictor, x: np.ndarray, n_cells, tissue: np.ndarray) -> np.ndarray:
+    """(S,) the 8 planar transforms' disagreement (module docs) for network inputs x (S, C, H,
+    W), N_c per mould, and each mould's tissue pixels (S, H, W) at the model's grid size."""
+    model = predictor.model.eval()
+    n_cells = np.asarray(n_cells, dtype=np.float64).reshape(-1)
+    out = np.empty(len(x))
+    with torch.inference_mode():
+        for i in range(len(x)):
+            moved = _moved(predictor, x[i:i + 1])
+            back = []
+            for k, m in enumerate(moved):
+                y, _ = decode(predictor.scaling, run_network(model, m).contiguous().double(),
+                              n_cells[i:i + 1].astype(np.float32))
+                back.append(apply_symmetry(k, fields=y.cpu().numpy(), inverse=True)[1][0])
+            back = np.stack(back)  # (8, 8, H, W)
+            mask = np.broadcast_to(tissue[i], back.shape[1:])
+            mean = back.mean(axis=0)
+            spread = np.sqrt(np.mean((back - mean)[:, mask] ** 2))
+            out[i] = spread / max(np.sqrt(np.mean(mean[mask] ** 2)), 1e-12)
+    return out
+
+
+def descriptors(mould) -> np.ndarray:
+    """The mould's geometry in DESCRIPTORS' numbers, lengths in box sides (so any scene)."""
+    box = float(mould.box)
+    polygon = mould.polygon
+    tethers = np.asarray(mould.tethers, dtype=float).reshape(-1, 3)
+    xmin, ymin, xmax, ymax = polygon.bounds
+    rect = polygon.minimum_rotated_rectangle
+    edges = np.diff(np.asarray(rect.exterior.coords)[:3], axis=0)
+    sides = np.sort(np.hypot(edges[:, 0], edges[:, 1]))
+    n = len(tethers)
+    if n:
+        walls = shapely.distance(polygon.boundary, shapely.points(tethers[:, :2])) - tethers[:, 2]
+        spacing = 0.0
+        if n > 1:
+            d = np.linalg.norm(tethers[:, None, :2] - tethers[None, :, :2], axis=2)
+            np.fill_diagonal(d, np.inf)
+            spacing = float(np.median(d.min(axis=1)))
+    holes = [shapely.Polygon(ring) for ring in polygon.interiors]
+    return np.array([
+        polygon.area / box**2,
+        polygon.length / (2 * math.sqrt(math.pi * polygon.area)),
+        max(xmax - xmin, ymax - ymin) / box,
+        sides[1] / max(sides[0], 1e-12),
+        n,
+        tethers[:, 2].max() / box if n else 0.0,
+        tethers[:, 2].min() / box if n else 0.0,
+        spacing / box,
+        float(np.min(walls)) / box if n else 0.0,
+        float(np.sum(np.pi * tethers[:, 2] ** 2)) / polygon.area if n else 0.0,
+        len(holes),
+        sum(h.area for h in holes) / box**2,
+    ])
+
+
+def knn_distance(bank: np.ndarray, query: np.ndarray, k: int = K_NEAREST,
+                 scale: np.ndarray | None = None) -> np.ndarray:
+    """(Q,) mean Euclidean distance of each query row to its k nearest rows of bank (N, D),
+    each dimension divided by `scale` (default: the bank's standard deviation), over the bank
+    rows' own mean distance to their k nearest others (leave one out): 1 is typical."""
+    bank, query = np.asarray(bank, np.float64), np.atleast_2d(np.asarray(query, np.float64))
+    if scale is None:
+        scale = bank.std(axis=0)
+    scale = np.where(scale > 0, scale, 1.0)
+    b, q = bank / scale, query / scale
+    k = min(k, len(b) - 1)
+
+    def nearest(a, exclude_self):
+        d = np.sqrt(np.maximum(((a[:, None, :] - b[None, :, :]) ** 2).sum(-1), 0.0))
+        if exclude_self:
+            np.fill_diagonal(d, np.inf)
+        return np.sort(d, axis=1)[:, :k].mean(axis=1)
+
+    typical = float(np.median(nearest(b, True)))
+    return nearest(q, False) / max(typical, 1e-12)
