@@ -196,7 +196,7 @@ def cmd_predict(args) -> None:
 
     result = predict_mould(args.checkpoint, args.mould, args.out, l0_um=args.l0_um, fit=args.fit,
                            units=args.units, device=args.device, mode=args.mode,
-                           precision=args.precision, force=args.force,
+                           precision=args.precision, force=args.force, check=args.check,
                            say=lambda line: print(line, flush=True),
                            warn=lambda line: print(f"condor predict: warning: {line}",
                                                    file=sys.stderr))
@@ -390,6 +390,10 @@ def _parser_predict(sub) -> None:
                    help="the network's arithmetic: bfloat16 is about twice as fast where the "
                         "CPU has it and moves the fields by a few 1e-3 of their largest value; "
                         "auto takes it where it is native (default: %(default)s)")
+    p.add_argument("--check", type=_non_negative_int, default=0, metavar="N",
+                   help="simulate the mould N times with the dataset's solver (seconds each at "
+                        "the default scene) and score the prediction against them (N >= 2; "
+                        "default: no check)")
     _user_mould_args(p)
     _device_arg(p)
     _force_arg(p)

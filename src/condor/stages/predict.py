@@ -47,6 +47,7 @@ class PredictedMould:
     verdict: str | None
     native: int
     mode: str
+    check: object = None  # condor.stages.check.Check, when predict was asked to check
 
     def lines(self) -> list[str]:
         """What `condor predict` prints when it is done."""
@@ -61,18 +62,22 @@ class PredictedMould:
                 lines.append(f"  {self.calibrated}")
         if self.verdict is not None:
             lines.append(f"training domain: {self.verdict}")
+        if self.check is not None:
+            lines += self.check.lines()
         return lines
 
 
 def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=None,
                   units: str | None = None, device=None, mode: str | None = None,
-                  precision: str = DEFAULT_PRECISION, force: bool = False,
+                  precision: str = DEFAULT_PRECISION, force: bool = False, check: int = 0,
                   say=print, warn=print) -> PredictedMould:
     """Predict mould `mould` (a mould file, or its input channels as a .npy or .png) with
     `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`: how a drawing is
-    read and placed (condor.moulds.read.load_placement); `say(line)`: how it was read;
-    `warn(line)`: each warning. Nothing that exists is replaced without `force`, and never a
-    dataset store or a folder that predict did not write."""
+    read and placed (condor.moulds.read.load_placement); `check`: simulate the mould that many
+    times and score the prediction against them (condor.stages.check; a mould file only);
+    `say(line)`: how it was read, and each check simulation; `warn(line)`: each warning.
+    Nothing that exists is replaced without `force`, and never a dataset store or a folder
+    that predict did not write."""
     from condor.surrogate.predict import Predictor
 
     out = check_output(out, force)
@@ -85,6 +90,9 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
         for warning in training_domain_check(placement.mould, scene):
             warn(warning)
         verdict = mould_domain_verdict(placement.mould, scene)
+    if check and placement is None:
+        raise PredictError(f"--check simulates the mould, which needs its geometry: give "
+                           f"{mould} as a JSON, SVG or DXF mould file, not a picture")
     inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
     table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn)
@@ -98,8 +106,15 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
                                  calibrated)
         write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
                          l0_um=l0_um)
+    checked = None
+    if check:
+        from condor.stages.check import check_prediction
+
+        say(f"checking by {check} simulations of the mould ({scene.name} scene)")
+        checked = check_prediction(placement.mould, scene, prediction.normalised,
+                                   float(prediction.n_cells), check, say=say)
     return PredictedMould(out, prediction, table, calibrated, verdict, predictor.native,
-                          predictor.mode)
+                          predictor.mode, checked)
 
 
 def check_output(out, force: bool) -> Path:

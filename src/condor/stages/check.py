@@ -1,0 +1,118 @@
+"""A prediction that checks itself by simulation (`condor predict --check N`, and
+`check_prediction` in Python).
+
+At the default scene one simulation of a mould costs seconds, so the truth for one user's
+mould is cheap: simulate it N times with the product's solver (the dataset's: relaxed_anneal,
+its default budget), each replica with its own seed, and score the surrogate's prediction
+against the replicas' mean with the finite-replica noise removed (condor.measures.estimators,
+as every accuracy figure of the project), beside one simulation's scatter about that mean (the
+noise ceiling). The whole-mould statistics are given both ways, under the same names
+(condor.surrogate.answer.statistics): predicted, and simulated (mean and standard deviation of
+the replicas). The surrogate's worth is in ranking thousands of moulds; a check is how a user
+trusts it on theirs (docs/user_moulds.md).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+
+from condor.data.fields import cell_fields, normalise
+from condor.data.seeds import replica_seed
+from condor.measures import estimators as est
+from condor.model.scenes import Scene
+from condor.model.simulate import DEFAULT_SOLVER
+from condor.stages.build import simulate_mould
+from condor.surrogate.answer import statistics
+
+CHECK_SEED = 0x0C4EC  # the dataset seed of a check's replica streams (no dataset uses it)
+MIN_CHECK = 2  # replicas: the noise needs two; three or more for a steadier figure
+
+
+@dataclass
+class Check:
+    """A prediction against N simulations of the same mould: `error` the prediction's field
+    error against the replicas' expected fields (noise removed; RMS over the 8 normalised
+    fields and the pixels), `ceiling` one simulation's (its scatter about the mean), `table`
+    per statistic: predicted, simulated mean and standard deviation, and the difference in
+    simulated standard deviations; `failed` the replicas that failed, with their status."""
+
+    n: int
+    error: float
+    ceiling: float
+    table: pd.DataFrame
+    failed: list
+    seconds: float
+
+    def lines(self) -> list[str]:
+        ratio = self.error / self.ceiling if self.ceiling > 0 else math.nan
+        words = ("closer to the simulations' mean than one simulation is" if ratio < 1 else
+                 "farther from the simulations' mean than one simulation is")
+        lines = [f"checked by {self.n} simulations ({self.seconds:.0f} s): the prediction lies "
+                 f"{self.error:.3g} from their mean fields (noise removed), one simulation "
+                 f"{self.ceiling:.3g}: {ratio:.2f}x, {words}",
+                 "  statistic         predicted    simulated (mean +- sd)   difference"]
+        for row in self.table.itertuples():
+            diff = (f"{row.difference_in_sd:+.1f} sd" if np.isfinite(row.difference_in_sd)
+                    else "")
+            lines.append(f"  {row.statistic:<16} {row.predicted:>10.4g}    "
+                         f"{row.simulated:>10.4g} +- {row.simulated_sd:<9.3g}  {diff}")
+        if self.failed:
+            lines.append(f"  {len(self.failed)} simulation(s) failed: "
+                         + "; ".join(f"seed {s}: {why}" for s, why in self.failed))
+        return lines
+
+
+def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_cells: float,
+                     n: int, solver: str | None = None, budget=None, say=None) -> Check:
+    """Simulate `mould` (a condor.moulds.mould.Mould placed in `scene`) `n` times with `solver`
+    (None: the product's) and score `predicted_normalised` (8, H, W, the scene's grid; its N_c
+    `n_cells`) against the replicas (class Check). `say(line)`: one line a replica, as each finishes. ValueError
+    when n < MIN_CHECK or fewer than MIN_CHECK replicas finish ok."""
+    if n < MIN_CHECK:
+        raise ValueError(f"--check {n}: the noise of the simulations' mean needs at least "
+                         f"{MIN_CHECK} of them (3 or more for a steadier figure)")
+    if not math.isfinite(scene.depth):
+        raise ValueError("the checkpoint records no mould depth: its scene cannot be simulated")
+    solver = solver or DEFAULT_SOLVER
+    fields, stats, failed = [], [], []
+    start = time.monotonic()
+    for k in range(n):
+        seed = replica_seed(CHECK_SEED, 0, k)
+        result = simulate_mould(mould, scene, solver, budget, seed)
+        if result.status != "ok":
+            failed.append((seed, result.status))
+            if say is not None:
+                say(f"simulation {k + 1}/{n}: failed ({result.status})")
+            continue
+        raw = cell_fields(result.positions, result.orientations, result.tension, scene.box,
+                          scene.pixels, scene.sigma)
+        f = normalise(raw, len(result.positions))
+        fields.append(f)
+        stats.append(statistics(f, len(result.positions), scene.pixel_size))
+        if say is not None:
+            say(f"simulation {k + 1}/{n}: {result.n_cells} cells, E/cell "
+                f"{result.energy_per_cell:.5g}, {result.seconds:.1f} s")
+    if len(fields) < MIN_CHECK:
+        raise ValueError(f"only {len(fields)} of {n} simulations finished ok: too few to check "
+                         "against (" + "; ".join(why for _, why in failed) + ")")
+    replicas = np.stack(fields)[None].astype(np.float64)  # (1, R, 8, H, W)
+    predicted = np.asarray(predicted_normalised, dtype=np.float64)[None]
+    error = est.root_mean(est.mse_against_expected(predicted, replicas).corrected)
+    ceiling = est.root_mean(est.noise_ceiling(replicas))
+    predicted_stats = statistics(predicted[0], float(n_cells), scene.pixel_size)
+    rows = []
+    for name in predicted_stats:
+        values = np.array([s[name] for s in stats], dtype=np.float64)
+        mean, sd = float(np.mean(values)), float(np.std(values, ddof=1))
+        value = float(predicted_stats[name])
+        rows.append({"statistic": name, "predicted": value, "simulated": mean,
+                     "simulated_sd": sd,
+                     "difference_in_sd": (value - mean) / sd if sd > 0 else math.nan})
+    return Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),
+                 failed=failed, seconds=time.monotonic() - start)
+

@@ -1,0 +1,81 @@
+"""A predictor scored family by family (condor.studies.families), and a prediction checked by
+simulation (condor.stages.check)."""
+
+import numpy as np
+import pytest
+
+from condor.data.fields import cell_fields, normalise
+from condor.data.seeds import replica_seed
+from condor.model.scenes import get_scene
+from condor.moulds.lab import lab_mould
+from condor.stages.build import simulate_mould
+from condor.stages.check import CHECK_SEED, check_prediction
+from condor.studies.families import family_rows, mean_tension
+from condor.studies.reference import Ensemble
+from condor.surrogate.answer import statistics
+
+
+def _ensemble(truth, sigma, replicas, rng):
+    """Replicas (M, R, 8, H, W) drawn about `truth` with noise sigma, as raw fields whose N_c
+    is the density sum (normalising them leaves them as they are when sum P = H * W)."""
+    m = truth.shape[0]
+    raw = truth[:, None] + sigma * rng.standard_normal((m, replicas) + truth.shape[1:])
+    n_cells = np.full(m, float(truth.shape[-1] * truth.shape[-2]))
+    return Ensemble(moulds=np.arange(m), raw=raw, n_cells=n_cells,
+                    inputs=np.ones((m, 2, *truth.shape[-2:]), np.uint8), pixel_size=1.0,
+                    seconds=np.ones((m, replicas)), energy_per_cell=np.ones((m, replicas)))
+
+
+def test_family_rows_against_draws_with_known_answers():
+    """Synthetic replicas about known expected fields: a prediction equal to them scores ~0
+    with the noise removed (plain error ~ sigma / sqrt R); the ceiling is sigma; a prediction
+    whose T is 10% high has a tension bias of +10% exactly."""
+    rng = np.random.default_rng(0)
+    h = 16
+    truth = np.ones((12, 8, h, h))
+    truth[:, 1] = rng.uniform(0.5, 1.5, size=(12, 1, 1))  # the tension field
+    sigma = 0.05
+    ensemble = _ensemble(truth, sigma, 8, rng)
+    families = ["a"] * 6 + ["b"] * 6
+    exact = family_rows(ensemble, truth, families)
+    assert list(exact["family"]) == ["a", "b"] and list(exact["n_moulds"]) == [6, 6]
+    assert exact["error"].max() < 0.2 * sigma
+    assert exact["noise_ceiling"].to_numpy() == pytest.approx([sigma, sigma], rel=0.1)
+    assert np.all(np.abs(exact["tension_bias"]) < 0.01)
+    high = truth.copy()
+    high[:, 1] *= 1.1
+    biased = family_rows(ensemble, high, families)
+    # the predicted P sums are exact, the expected's carry the replicas' noise (tiny)
+    assert biased["tension_bias"].to_numpy() == pytest.approx([0.1, 0.1], abs=0.005)
+    assert mean_tension(high[0]) == pytest.approx(1.1 * mean_tension(truth[0]))
+    with pytest.raises(ValueError, match="family labels"):
+        family_rows(ensemble, truth, families[:-1])
+
+
+def test_a_check_scores_the_prediction_against_the_same_simulations_run_directly():
+    """check_prediction's replicas are the seeds replica_seed(CHECK_SEED, 0, k): simulated here
+    directly, their mean fields as the 'prediction' lie at distance 0 (noise removed), and each
+    statistic's simulated mean and sd are the replicas' own."""
+    scene = get_scene("tiny")
+    mould = lab_mould(1, 2, "strip", scene)
+    fields, stats = [], []
+    for k in range(3):
+        r = simulate_mould(mould, scene, None, None, replica_seed(CHECK_SEED, 0, k))
+        f = normalise(cell_fields(r.positions, r.orientations, r.tension, scene.box,
+                                  scene.pixels, scene.sigma), len(r.positions))
+        fields.append(f)
+        stats.append(statistics(f, len(r.positions), scene.pixel_size))
+    mean = np.mean(fields, axis=0)
+    lines = []
+    check = check_prediction(mould, scene, mean, len(r.positions), 3, say=lines.append)
+    assert check.n == 3 and len(lines) == 3 and not check.failed
+    assert check.error == 0.0 and check.ceiling > 0
+    tension = check.table.set_index("statistic").loc["mean_tension"]
+    assert tension.simulated == pytest.approx(np.mean([s["mean_tension"] for s in stats]))
+    assert tension.simulated_sd == pytest.approx(np.std([s["mean_tension"] for s in stats],
+                                                        ddof=1))
+    one = check_prediction(mould, scene, fields[0], len(r.positions), 3)
+    assert one.error > 0.5 * one.ceiling  # one of the replicas is no closer than one simulation
+    assert "checked by 3 simulations" in one.lines()[0]
+    with pytest.raises(ValueError, match="--check 1: .* at least 2"):
+        check_prediction(mould, scene, mean, len(r.positions), 1)

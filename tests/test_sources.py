@@ -1,0 +1,80 @@
+"""Which source makes each mould (condor.moulds.sources) and the config's mixture keys."""
+
+from collections import Counter
+
+import numpy as np
+import pytest
+
+from condor.config import Config, ConfigError
+from condor.model.scenes import get_scene
+from condor.moulds.lab import FAMILY_NAMES
+from condor.moulds.mould import PAPER
+from condor.moulds.sources import assign_sources, make_mould
+
+
+def _splits(n_train, n_val, n_test, seed=0):
+    labels = ["train"] * n_train + ["val"] * n_val + ["test"] * n_test
+    return tuple(np.random.default_rng(seed).permutation(labels))
+
+
+def test_sources_meet_the_counts_per_split_with_families_in_equal_shares():
+    splits = _splits(300, 30, 100)
+    sources = assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, pinned=[0, 1, 2])
+    by_split = Counter((s, src != PAPER) for s, src in zip(splits, sources))
+    assert by_split[("test", True)] == 40 and by_split[("test", False)] == 60
+    assert by_split[("train", True)] == 150 and by_split[("val", True)] == 15
+    for split in ("train", "val", "test"):
+        shares = Counter(src for s, src in zip(splits, sources) if s == split and src != PAPER)
+        assert set(shares) <= set(FAMILY_NAMES)
+        assert max(shares.values()) - min(shares.values()) <= 1
+    assert all(sources[i] == PAPER for i in (0, 1, 2))  # the pinned moulds
+    assert sources == assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, pinned=[0, 1, 2])
+    assert sources != assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=4, pinned=[0, 1, 2])
+    only = assign_sources(splits, 1.0, 0, ("ring",), seed=3)
+    assert {src for s, src in zip(splits, only) if s != "test"} == {"ring"}
+
+
+def test_impossible_mixtures_are_refused():
+    splits = _splits(20, 2, 5)
+    with pytest.raises(ValueError, match="6 lab moulds asked of the 5 test moulds, of which 3"):
+        assign_sources(splits, 0.5, 6, FAMILY_NAMES, seed=0, pinned=[i for i, s in
+                                                                      enumerate(splits)
+                                                                      if s == "test"][:2])
+    with pytest.raises(ValueError, match="unknown lab families"):
+        assign_sources(splits, 0.5, 1, ("star",), seed=0)
+    with pytest.raises(ValueError, match="no lab family"):
+        assign_sources(splits, 0.5, 1, (), seed=0)
+
+
+def test_a_mould_comes_from_its_source():
+    scene = get_scene("default")
+    paper = make_mould(scene, 2026, 3, PAPER)
+    assert paper.family == PAPER and paper.is_generated
+    lab = make_mould(scene, 2026, 3, "ring")
+    assert lab.family == "ring" and not lab.is_generated and lab.n_tethers == 1
+
+
+def test_the_config_refuses_mixtures_it_cannot_make_naming_the_key():
+    for changes, key in [({"split": {"test": 10, "lab_test": 9}}, "split/lab_test"),
+                         ({"moulds": {"lab_area": [0.5, 0.6]}}, "moulds/lab_area"),
+                         ({"moulds": {"lab_area": [0.4, 0.3]}}, "moulds/lab_area"),
+                         ({"moulds": {"lab_families": ["star"]}}, "moulds/lab_families"),
+                         ({"moulds": {"lab_fraction": 1.5}}, "moulds/lab_fraction"),
+                         ({"split": {"test": 10, "lab_test": 5}, "report": {"moulds": 6}},
+                          "report/moulds")]:
+        with pytest.raises(ConfigError, match=f"config key {key}"):
+            Config.default(**changes)
+
+
+def test_lab_test_moulds_take_the_test_replicas_and_define_the_data():
+    config = Config.default()
+    sources, splits, replicas = config.sources(), config.splits(), config.replicas()
+    lab_tests = [i for i, (s, src) in enumerate(zip(splits, sources))
+                 if s == "test" and src != PAPER]
+    assert len(lab_tests) == config.split["lab_test"]
+    assert {replicas[i] for i in lab_tests} == {config.simulation["replicas"]["test"]}
+    assert config.test_moulds("lab") == lab_tests
+    assert set(config.test_moulds("paper")) | set(lab_tests) == set(config.test_moulds())
+    other = Config.default(moulds={"lab_fraction": 0.25})
+    assert other.data_config() != config.data_config()
+    assert other.data_config()["lab_fraction"] == 0.25
