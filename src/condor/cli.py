@@ -11,6 +11,8 @@ from pathlib import Path
 from condor.data.store import SPLITS
 from condor.model.scenes import PRESETS, get_scene
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS
+from condor.moulds.lab import FAMILY_NAMES
+from condor.moulds.mould import PAPER
 from condor.moulds.paper import MouldParams
 from condor.moulds.place import FIT_MODES
 from condor.moulds.read import load_placement
@@ -87,9 +89,17 @@ def cmd_mould(args) -> None:
     params.validate()
     out = _new_output(args.out, args.force) if args.out else None
     png = _new_output(args.png, args.force, "--png") if args.png else None
-    mould = mould_files(get_scene(args.scene), args.seed, args.id, params, out, png)
-    print(f"mould {mould.mould_id} (seed {mould.seed}): {mould.symmetry}, order {mould.order}, "
-          f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
+    mould = mould_files(get_scene(args.scene), args.seed, args.id, params, out, png,
+                        args.family)
+    if mould.family == PAPER:
+        print(f"mould {mould.mould_id} (seed {mould.seed}): {mould.symmetry}, order "
+              f"{mould.order}, removal {mould.removal}, {mould.n_tethers} tethers, box "
+              f"{mould.box:g} l0")
+    else:
+        print(f"mould {mould.mould_id} (seed {mould.seed}): lab family {mould.family}, area "
+              f"{mould.polygon.area / mould.box ** 2:.3g} of the box, "
+              f"{len(mould.polygon.interiors)} holes, {mould.n_tethers} posts, box "
+              f"{mould.box:g} l0")
 
 
 def cmd_simulate(args) -> None:
@@ -280,6 +290,9 @@ def _parser_mould(sub) -> None:
     p = sub.add_parser("mould", help="generate one mould: geometry JSON and a picture")
     p.add_argument("--seed", type=_non_negative_int, required=True, help="global seed")
     p.add_argument("--id", type=_non_negative_int, default=0, help="mould id (default 0)")
+    p.add_argument("--family", default=PAPER, choices=(PAPER,) + FAMILY_NAMES,
+                   help="the paper's generator (default) or a lab family "
+                        "(docs/moulds.md, \"Lab families\")")
     p.add_argument("--out", help="write the geometry as JSON here")
     p.add_argument("--png", help="write a picture here")
     p.add_argument("--no-tether-fraction", type=float, default=None,

@@ -64,7 +64,8 @@ def draw_mould(ax, mould, title: bool = True) -> None:
     ax.set_xticks([])
     ax.set_yticks([])
     if title:
-        ax.set_title(f"{mould.symmetry}, {mould.order}, {mould.removal}", fontsize=7)
+        ax.set_title(f"{mould.symmetry}, {mould.order}, {mould.removal}" if mould.is_generated
+                     else f"{mould.family} ({mould.n_tethers} posts)", fontsize=7)
 
 
 def mould_gallery(moulds, path, ncols: int = 6) -> Path:

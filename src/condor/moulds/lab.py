@@ -159,11 +159,11 @@ def _cross(rng):
     arms = []
     posts = []
     inset = rng.uniform(0.5, 0.85) * width
+    cap = "round" if rng.random() < 0.5 else "flat"
     for k in range(n):
         a = phase + 2 * np.pi * k / n
         end = (length * math.cos(a), length * math.sin(a))
-        arms.append(LineString([(0, 0), end]).buffer(width / 2, cap_style="round" if
-                                                     rng.random() < 0.5 else "flat",
+        arms.append(LineString([(0, 0), end]).buffer(width / 2, cap_style=cap,
                                                      quad_segs=ARC_SEGMENTS))
         posts.append(((length - inset) * math.cos(a), (length - inset) * math.sin(a)))
     outline = _fillet(shapely.union_all(arms), 0.2 * width)

@@ -283,10 +283,10 @@ def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[in
 # --- the command line's stages: one mould, one store --------------------------------------------
 
 def mould_files(scene: Scene, seed: int, mould_id: int, params=None, out=None,
-                png=None) -> Mould:
-    """Mould `mould_id` of dataset `seed` in `scene` (make_mould), written as the generator's
-    JSON to `out` and drawn to `png` (each when given)."""
-    mould = make_mould(scene, seed, mould_id, params)
+                png=None, source: str = PAPER) -> Mould:
+    """Mould `mould_id` of dataset `seed` in `scene` from `source` (make_mould: the generator
+    or a lab family), written as JSON to `out` and drawn to `png` (each when given)."""
+    mould = make_mould(scene, seed, mould_id, source, params)
     if out:
         save_json(mould, out)
     if png:
