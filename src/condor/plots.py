@@ -68,7 +68,7 @@ def draw_mould(ax, mould, title: bool = True) -> None:
                      else f"{mould.family} ({mould.n_tethers} posts)", fontsize=7)
 
 
-def mould_gallery(moulds, path, ncols: int = 6) -> Path:
+def mould_gallery(moulds, path, ncols: int = 6, dpi: int = 100) -> Path:
     """A PNG grid of moulds."""
     moulds = list(moulds)
     if not moulds:
@@ -82,7 +82,7 @@ def mould_gallery(moulds, path, ncols: int = 6) -> Path:
     for ax, mould in zip(axes.flat, moulds):
         draw_mould(ax, mould)
     fig.tight_layout()
-    return save(fig, path)
+    return save(fig, path, dpi=dpi)
 
 
 def mould_picture(mould, path) -> Path:

@@ -11,7 +11,7 @@ import ezdxf
 import numpy as np
 from ezdxf import units as dxfunits
 
-from condor.moulds.mould import Mould
+from condor.moulds.mould import USER, Mould
 from condor.moulds.units import DXF_UNITS_PROPERTY, drawing_scale, length_text
 
 def _tether_rows(mould: Mould, l0_um: float | None) -> list[tuple[str, ...]]:
@@ -141,7 +141,9 @@ def _svg_line(x1, y1, x2, y2) -> str:
 
 
 def _title_lines(mould: Mould, l0_um: float | None, box_drawn: bool = True) -> tuple[str, str]:
-    kind = (f"{mould.symmetry}, seed {mould.seed}" if mould.is_generated else mould.symmetry)
+    kind = (f"{mould.symmetry}, seed {mould.seed}" if mould.is_generated else
+            f"lab family {mould.family}, seed {mould.seed}" if mould.family != USER else
+            mould.symmetry)
     scale = f"l0 = {l0_um:g} um; " if l0_um is not None else ""
     unit = "mm" if l0_um is not None else "l0"
     dashed = " (dashed)" if box_drawn else ""
