@@ -70,8 +70,8 @@ def window_width(pixels_per_sigma: float) -> int:
 # evaluations in one shared offset, instead of W + 1 erf calls. M is the smallest power of two
 # with s / M <= 1/64, where the first neglected term is below 1e-18 (Cramer's bound on
 # Hermite functions), so the polynomials are as accurate as the arithmetic: relative errors
-# below 1e-14 in every pixel, tails included (tested), where a difference of two erf values
-# near 1 is only accurate to 1e-16 absolute; the two differ from each other by about that.
+# of 1e-14 at most in every pixel, tails included (tested to 1e-13), where a difference of two
+# erf values near 1 is only accurate to 1e-16 absolute; the two differ by about that.
 TAYLOR_DEGREE = 8
 TAYLOR_STEP = 1.0 / 64.0  # the most a piece spans, in units of sqrt2 sigma
 
@@ -86,7 +86,7 @@ def _weight_table(sigma_px: float) -> np.ndarray:
     pieces = 1 << max(0, math.ceil(math.log2(s / TAYLOR_STEP)))
     table = np.empty((pieces, TAYLOR_DEGREE + 1, width))
     for m in range(pieces):
-        x = s * (np.arange(width + 1) - reach - m / pieces)  # the window's edges
+        x = s * ((np.arange(width + 1) - m / pieces) - reach)  # the window's edges
         # Degree 0: each pixel's mass, from erfc in the tails (no cancellation of erf near 1).
         for k in range(width):
             a, b = float(x[k]), float(x[k + 1])
@@ -113,11 +113,12 @@ def _axis_weights(coord_px, reach, table, first, weights):
     """Fill first[i] and weights[i, :] for coordinates in pixel units (edges at integers)."""
     pieces, terms, width = table.shape
     for i in range(coord_px.shape[0]):
-        t = coord_px[i] - reach
-        k0 = math.floor(t)
+        k0 = math.floor(coord_px[i] - reach)
         first[i] = int(k0)
-        f = t - k0
-        m = min(int(f * pieces), pieces - 1)
+        # The offset as (u - k0) - R: u - k0 is exact (or nearly: it lies in [R, R + 1)), so
+        # f carries no rounding of u's own size, whatever R is.
+        f = (coord_px[i] - k0) - reach
+        m = min(max(int(f * pieces), 0), pieces - 1)
         d = f - m / pieces
         row = weights[i]
         for k in range(width):
