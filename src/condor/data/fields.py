@@ -111,7 +111,7 @@ def _weight_table(sigma_px: float) -> np.ndarray:
 @numba.njit(cache=True)
 def _axis_weights(coord_px, reach, table, first, weights):
     """Fill first[i] and weights[i, :] for coordinates in pixel units (edges at integers)."""
-    pieces, terms, width = table.shape
+    pieces, width = table.shape[0], table.shape[2]
     for i in range(coord_px.shape[0]):
         k0 = math.floor(coord_px[i] - reach)
         first[i] = int(k0)
@@ -120,12 +120,12 @@ def _axis_weights(coord_px, reach, table, first, weights):
         f = (coord_px[i] - k0) - reach
         m = min(max(int(f * pieces), 0), pieces - 1)
         d = f - m / pieces
-        row = weights[i]
-        for k in range(width):
-            row[k] = table[m, terms - 1, k]
-        for n in range(terms - 2, -1, -1):
-            for k in range(width):
-                row[k] = row[k] * d + table[m, n, k]
+        row, coefficients = weights[i], table[m]
+        for k in range(width):  # the degree a constant: Horner unrolled, vectorised over k
+            acc = coefficients[TAYLOR_DEGREE, k]
+            for n in range(TAYLOR_DEGREE - 1, -1, -1):
+                acc = acc * d + coefficients[n, k]
+            row[k] = acc
 
 
 def pixel_weights(
@@ -245,39 +245,33 @@ def _cell_groups(first_y, first_x, width, height, breadth, span):
 
 
 @numba.njit(cache=True, inline="always")
-def _template(i, first_y, wy, first_x, wx, values, y0, y1, x0, x1, row_weights, template):
+def _template(i, first_y, wy, first_x, wx, values, y0, y1, x0, x1, row_weights, template, value):
     """Cell i over the box rows [y0, y1) x columns [x0, x1), zero outside its window:
     row_weights[r] = its wy of row y0 + r, template[(x - x0) * C + c] = its wx of column x
-    times its value c (the same products as cell by cell)."""
+    times its value c (the same products as cell by cell). value: (C,) scratch."""
     width = wy.shape[1]
     n_channels = values.shape[1]
     fy, fx = first_y[i], first_x[i]
     xs, xe = max(x0, fx), min(x1, fx + width)
     ys, ye = max(y0, fy), min(y1, fy + width)
-    for j in range((xs - x0) * n_channels):
-        template[j] = 0.0
-    for j in range((xe - x0) * n_channels, (x1 - x0) * n_channels):
-        template[j] = 0.0
-    value = values[i]
-    o = (xs - x0) * n_channels
+    template[: (xs - x0) * n_channels] = 0.0
+    template[(xe - x0) * n_channels : (x1 - x0) * n_channels] = 0.0
+    value[:] = values[i]
+    window = template[(xs - x0) * n_channels : (xe - x0) * n_channels]
+    column = wx[i, xs - fx : xe - fx]
     if n_channels == 8:  # a count known to the compiler: one vector multiply per pixel
-        for k in range(xs - fx, xe - fx):
-            a = wx[i, k]
+        for k in range(xe - xs):
+            a = column[k]
             for c in range(8):
-                template[o + c] = a * value[c]
-            o += 8
+                window[k * 8 + c] = a * value[c]
     else:
-        for k in range(xs - fx, xe - fx):
-            a = wx[i, k]
+        for k in range(xe - xs):
+            a = column[k]
             for c in range(n_channels):
-                template[o + c] = a * value[c]
-            o += n_channels
-    for r in range(ys - y0):
-        row_weights[r] = 0.0
-    for r in range(ys - y0, ye - y0):
-        row_weights[r] = wy[i, r + y0 - fy]
-    for r in range(ye - y0, y1 - y0):
-        row_weights[r] = 0.0
+                window[k * n_channels + c] = a * value[c]
+    row_weights[: ys - y0] = 0.0
+    row_weights[ys - y0 : ye - y0] = wy[i, ys - fy : ye - fy]
+    row_weights[ye - y0 : y1 - y0] = 0.0
 
 
 @numba.njit(cache=True)
@@ -294,6 +288,7 @@ def _splat_rows(first_y, wy, first_x, wx, values, bounds, boxes, span, y_lo, y_h
     skip = (-store.ctypes.data % 64) // 8
     t = store[skip : skip + GROUP * length].reshape((GROUP, length))
     w = np.empty((GROUP, width + span))
+    value = np.empty(n_channels)
     for g in range(bounds.shape[0] - 1):
         y0, y1 = max(y_lo, boxes[g, 0]), min(y_hi, boxes[g, 1])
         if y1 <= y0:
@@ -301,7 +296,8 @@ def _splat_rows(first_y, wy, first_x, wx, values, bounds, boxes, span, y_lo, y_h
         x0, x1 = boxes[g, 2], boxes[g, 3]
         a, k = bounds[g], bounds[g + 1] - bounds[g]
         for q in range(k):
-            _template(a + q, first_y, wy, first_x, wx, values, y0, y1, x0, x1, w[q], t[q])
+            _template(a + q, first_y, wy, first_x, wx, values, y0, y1, x0, x1, w[q], t[q],
+                      value)
         s, run = x0 * n_channels, (x1 - x0) * n_channels
         if k == 8:
             t0, t1, t2, t3, t4, t5, t6, t7 = t[0], t[1], t[2], t[3], t[4], t[5], t[6], t[7]
