@@ -80,16 +80,26 @@ TAYLOR_STEP = 1.0 / 64.0  # the most a piece spans, in units of sqrt2 sigma
 def _weight_table(sigma_px: float) -> np.ndarray:
     """Taylor coefficients (M, TAYLOR_DEGREE + 1, W) of the W window weights in f on each of
     M pieces [m / M, (m + 1) / M) (see above); read-only, one per sigma in px."""
-    reach = WINDOW_SIGMAS * sigma_px
-    width = window_width(sigma_px)
     s = 1.0 / (math.sqrt(2.0) * sigma_px)
     pieces = 1 << max(0, math.ceil(math.log2(s / TAYLOR_STEP)))
-    table = np.empty((pieces, TAYLOR_DEGREE + 1, width))
+    table = np.empty((pieces, TAYLOR_DEGREE + 1, window_width(sigma_px)))
+    _fill_weight_table(WINDOW_SIGMAS * sigma_px, s, table)
+    table.setflags(write=False)
+    return table
+
+
+@numba.njit(cache=True)
+def _fill_weight_table(reach, s, table):
+    pieces, terms, width = table.shape
+    x = np.empty(width + 1)
+    edge = np.empty(width + 1)
+    q_before, q, q_next = np.empty(width + 1), np.empty(width + 1), np.empty(width + 1)
     for m in range(pieces):
-        x = s * ((np.arange(width + 1) - m / pieces) - reach)  # the window's edges
+        for j in range(width + 1):  # the window's edges, in units of sqrt2 sigma
+            x[j] = s * ((j - m / pieces) - reach)
         # Degree 0: each pixel's mass, from erfc in the tails (no cancellation of erf near 1).
         for k in range(width):
-            a, b = float(x[k]), float(x[k + 1])
+            a, b = x[k], x[k + 1]
             if a >= 0.0:
                 table[m, 0, k] = 0.5 * (math.erfc(a) - math.erfc(b))
             elif b <= 0.0:
@@ -98,14 +108,17 @@ def _weight_table(sigma_px: float) -> np.ndarray:
                 table[m, 0, k] = 0.5 * (math.erf(b) - math.erf(a))
         # Degree n >= 1: d^n/df^n erf(s (j - R - f)) / n! = -(2/sqrt pi) e^{-x^2} q_n(x), with
         # q_n = H_{n-1}(x) s^n / n! (Hermite polynomials; q_1 = s, q_2 = x s^2).
-        gauss = (2.0 / math.sqrt(math.pi)) * np.exp(-x * x)
-        q_before, q = np.zeros_like(x), np.full_like(x, s)
-        for n in range(1, TAYLOR_DEGREE + 1):
-            edge = -q * gauss
-            table[m, n] = 0.5 * (edge[1:] - edge[:-1])
-            q_before, q = q, (2.0 * s * x * q - 2.0 * (n - 1) * s * s * q_before / n) / (n + 1)
-    table.setflags(write=False)
-    return table
+        for j in range(width + 1):
+            q_before[j], q[j] = 0.0, s
+        for n in range(1, terms):
+            for j in range(width + 1):
+                edge[j] = -q[j] * (2.0 / math.sqrt(math.pi)) * math.exp(-x[j] * x[j])
+                q_next[j] = (2.0 * s * x[j] * q[j]
+                             - 2.0 * (n - 1) * s * s * q_before[j] / n) / (n + 1)
+            for k in range(width):
+                table[m, n, k] = 0.5 * (edge[k + 1] - edge[k])
+            for j in range(width + 1):
+                q_before[j], q[j] = q[j], q_next[j]
 
 
 @numba.njit(cache=True)
