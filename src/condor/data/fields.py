@@ -265,8 +265,9 @@ def _template(i, first_y, wy, first_x, wx, values, y0, y1, x0, x1, row_weights, 
     width = wy.shape[1]
     n_channels = values.shape[1]
     fy, fx = first_y[i], first_x[i]
-    xs, xe = max(x0, fx), min(x1, fx + width)
-    ys, ye = max(y0, fy), min(y1, fy + width)
+    # The cell's part of the box; in a band of rows it may have none (ys = ye).
+    xs, ys = max(x0, fx), max(y0, fy)
+    xe, ye = max(xs, min(x1, fx + width)), max(ys, min(y1, fy + width))
     template[: (xs - x0) * n_channels] = 0.0
     template[(xe - x0) * n_channels : (x1 - x0) * n_channels] = 0.0
     value[:] = values[i]
