@@ -288,7 +288,7 @@ def test_taylor_weights_match_erfc_to_1e13_relative_in_every_pixel(sigma_px):
 
 
 def test_rasterise_gives_the_same_bits_on_any_number_of_threads_and_bands():
-    box, pixels = PAPER_BOX, 128
+    box, pixels = PAPER_BOX, PAPER_PIXELS  # groups spread over up to 4 rows of window starts
     xy, values = cells_everywhere(4000, box, 8, seed=13)
     one = F.rasterise(xy, values, box, pixels)
     for threads in (2, 3, 8):
@@ -308,7 +308,7 @@ def test_rasterise_gives_the_same_bits_on_any_number_of_threads_and_bands():
     assert set(np.diff(bounds)) == {1, 4, 8}  # every kind of group is exercised
     # Uneven bands, most narrower than a window, so that a group's box crosses several and
     # some of its cells have no rows in a band it meets.
-    for edges in ([0, 1, 5, 40, 41, 90, 127, 128], list(range(0, 128, 3)) + [128]):
+    for edges in ([0, 1, 5, 40, 41, 90, 255, 256], list(range(0, 256, 3)) + [256]):
         banded = F._zeros_aligned(grid.shape)
         F._splat_serial(first_y, wy, first_x, wx, np.ascontiguousarray(values[order]), bounds,
                         boxes, span, np.array(edges), banded)
