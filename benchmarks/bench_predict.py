@@ -94,7 +94,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     import condor.data.inputs as inputs_mod
-    from condor.cli import _checkpoint_scene
+    from condor.stages.predict import checkpoint_scene
     from condor.moulds.paper import MouldParams
     from condor.moulds.mould import input_channels
     from condor.stages.build import make_mould
@@ -106,7 +106,7 @@ def main() -> None:
         path = args.checkpoint or random_checkpoint(args.random, Path(tmp) / f"{args.random}.pt")
         predictor = Predictor(path, device="cpu", symmetrise=True if args.symmetrise else None,
                               precision=args.precision)
-    scene = _checkpoint_scene(predictor)
+    scene = checkpoint_scene(predictor)
     moulds = [make_mould(scene, args.seed, i, MouldParams()) for i in range(args.moulds)]
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
     extra = predictor.mould_arguments(moulds)

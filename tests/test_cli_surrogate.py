@@ -60,13 +60,23 @@ def run_main(argv):
     return exit_info.value.code
 
 
-def test_parser_choices_agree_with_library():
-    from condor.surrogate import inference as predict_module
+def test_the_parser_offers_the_library_s_choices_without_importing_torch():
+    """The parser's --mode and --precision choices are condor.surrogate.modes' (the networks'
+    and the Predictor's own), and building it does not import torch (`condor --help` stays
+    quick)."""
+    import subprocess
+    import sys
 
-    assert cli.PREDICTION_MODES == PREDICTION_MODES
-    assert (cli.AUTO_PRECISION, cli.PRECISIONS, cli.DEFAULT_PRECISION) == (
-        predict_module.AUTO_PRECISION, predict_module.PRECISIONS,
-        predict_module.DEFAULT_PRECISION)
+    from condor.surrogate import inference, networks
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices["predict"]
+    choices = {a.dest: tuple(a.choices) for a in sub._actions if a.choices}
+    assert choices["mode"] == networks.PREDICTION_MODES == PREDICTION_MODES
+    assert choices["precision"] == (inference.AUTO_PRECISION, *inference.PRECISIONS)
+    code = "import sys, condor.cli; condor.cli.build_parser(); print('torch' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "False"
 
 
 def test_train_writes_checkpoint(trained):

@@ -210,6 +210,43 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     return confirmation.summary
 
 
+def checkpoint_design_scene(checkpoint) -> Scene:
+    """The scene a checkpoint was trained on (condor.stages.predict.checkpoint_scene), in
+    which its designs are simulated; DesignOutputError when it records no mould depth."""
+    from condor.stages.predict import checkpoint_scene
+
+    scene = checkpoint_scene(Predictor(checkpoint, device="cpu"))
+    if np.isnan(scene.depth):
+        raise DesignOutputError(f"checkpoint {checkpoint!r} records no mould depth: its designs "
+                                "cannot be simulated")
+    return scene
+
+
+def summary_lines(summary, out_dir, n_top: int, objective: str, store=None,
+                  mould_paths=()) -> list[str]:
+    """What `condor design` prints of its run: the files, the best confirmed design and the
+    rank correlation, the dataset's best test mould, and each of your moulds against the best."""
+    lines = [f"{out_dir}: designs.csv, summary.csv, design_01..{n_top:02d} .json/.svg/.dxf, "
+             "predictions.zarr, figures/",
+             f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
+             f"{summary['spearman']:.2f} [{summary['spearman_low']:.2f}, "
+             f"{summary['spearman_high']:.2f}] over {int(summary['n'])} confirmed designs"]
+    if "best_baseline" in summary:
+        lines.append(f"best test mould of {store}: {summary['best_baseline']:.4g} "
+                     f"(improvement {summary['improvement']:+.4g})")
+    if mould_paths:
+        table = pd.read_csv(Path(out_dir) / "your_moulds.csv")
+        lines += [f"yours {row.simulated_objective:.3g} +- {row.simulated_objective_std:.2g} "
+                  f"(predicted {row.predicted_objective:.3g} +- {row.predicted_spread:.2g}) -> "
+                  f"best {summary['best_simulated']:.3g} simulated: {objective} "
+                  f"{summary['best_simulated'] - row.simulated_objective:+.3g} "
+                  f"(mould {row.mould}, {mould_paths[row.mould - 1]})"
+                  for row in table.itertuples()]
+        lines.append(f"your moulds, predicted and simulated: {Path(out_dir) / 'your_moulds.csv'}; "
+                     f"drawn beside the best designs in {Path(out_dir) / 'figures' / 'designs.png'}")
+    return lines
+
+
 def objective_spread_factor(objective, predictor) -> tuple[float, str]:
     """(factor, line): the calibration factor of the objective's predicted spread, the
     factor condor predict applies to the whole-mould statistic the objective equals

@@ -183,7 +183,7 @@ def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "") 
     return factors, note, warning
 
 
-def format_summary(table: pd.DataFrame) -> str:
+def format_mould_summary(table: pd.DataFrame) -> str:
     """The summary as lines "  alignment      0.62 +- 0.04  (0..1)"."""
     lines = []
     for row in table.itertuples():

@@ -166,7 +166,7 @@ def combine_summaries(paths) -> pd.DataFrame:
     return frame
 
 
-def format_summary(summary: pd.DataFrame, field_names=FIELD_NAMES) -> str:
+def format_evaluation(summary: pd.DataFrame, field_names=FIELD_NAMES) -> str:
     """Text table: mean MAE per field (columns) for each method (rows), with the mean over
     fields and the ratio of each method's mean MAE to the best baseline's."""
     columns = [f"mae_{k}" for k in field_names] + ["mae_mean"]

@@ -10,7 +10,10 @@ import weakref
 import numpy as np
 import torch
 
+from .modes import AUTO_PRECISION, PRECISIONS
 from .networks import UNetGenerator, inference_copy
+
+
 def default_device(device=None) -> torch.device:
     """`device` if given, else CUDA when present, else CPU."""
     if device is not None:
@@ -22,17 +25,6 @@ def default_device(device=None) -> torch.device:
 # version of every tensor of the model's state it was made from: a model trained or loaded
 # since gets a new copy.
 _INFERENCE_COPIES: "weakref.WeakKeyDictionary" = weakref.WeakKeyDictionary()
-
-
-# The arithmetic of "eval" prediction's network: float32 (the model's own), or bfloat16 (the
-# inference copy's weights and activations; CPUs with native bfloat16 arithmetic, such as
-# AVX512-BF16 or AMX, run it about twice as fast; measured on the default run's test moulds:
-# docs/surrogate.md, "Prediction time").
-PRECISIONS = ("float32", "bfloat16")
-# Predictor's default: bfloat16 where the CPU has it natively (bfloat16_is_native), else
-# float32. "auto" is resolved once, when the Predictor is made (Predictor.precision).
-AUTO_PRECISION = "auto"
-DEFAULT_PRECISION = AUTO_PRECISION
 
 
 def bfloat16_is_native() -> bool:

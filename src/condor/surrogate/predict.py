@@ -19,8 +19,8 @@ from condor.data.inputs import stress_channels
 from condor.measures.metrics import density_sums, normalise_predicted
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
-from .inference import (DEFAULT_PRECISION, decode, default_device, inference_model,
-                        resolve_precision, run_network)
+from .inference import decode, default_device, inference_model, resolve_precision, run_network
+from .modes import DEFAULT_PRECISION
 from .networks import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells
 from .samples import FIELD_NAMES, INPUT_VARIABLES, resample_fields, resample_inputs
@@ -252,7 +252,7 @@ def predict(checkpoint_path, inputs, mode: str | None = None, device=None,
             symmetrise: bool | None = None, n_cells=None,
             precision: str = DEFAULT_PRECISION) -> Prediction:
     """Predict fields for mould inputs (2, H, W) or (S, 2, H, W) (channels mould, tether; 0/1;
-    native resolution of the training data). `mode` (a models.PREDICTION_MODES entry)
+    native resolution of the training data). `mode` (a modes.PREDICTION_MODES entry)
     and `symmetrise` (test-time symmetrisation) default to the checkpoint's training config;
     `n_cells`: see Predictor.__call__."""
     return Predictor(checkpoint_path, device=device, mode=mode, symmetrise=symmetrise,

@@ -31,7 +31,8 @@ from .samples import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, Sa
                    apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
                    dataset_pixel_size, INPUT_VARIABLES, model_inputs, n_input_channels,
                    usable_samples)
-from .networks import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
+from .modes import PREDICTION_MODES
+from .networks import (PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
 from .inference import default_device
