@@ -246,7 +246,7 @@ def test_the_design_defaults_have_one_home():
     import inspect
 
     from condor import cli
-    from condor.design import confirm, search
+    from condor.design import confirm_designs, search_designs, simulate_designs
     from condor.stages.design import design
 
     args = cli.build_parser().parse_args(["design", "--objective", "uniformity", "--checkpoint",
@@ -255,6 +255,11 @@ def test_the_design_defaults_have_one_home():
     assert (args.budget, args.top, args.random, args.replicas, args.seed) == tuple(
         schema[k]["default"] for k in ("budget", "top", "random", "replicas", "seed"))
     for function, names in ((design, ("budget", "seed", "n_top", "n_random", "replicas")),
-                            (search, ("budget",)), (confirm, ("n_top", "n_random", "replicas"))):
+                            (search_designs, ("budget",)),
+                            (confirm_designs, ("n_top", "n_random", "replicas"))):
         parameters = inspect.signature(function).parameters
         assert all(parameters[n].default is inspect.Parameter.empty for n in names), function
+    # simulate_designs takes its replicas from its caller, or explicit seeds
+    assert inspect.signature(simulate_designs).parameters["replicas"].default is None
+    with pytest.raises(ValueError, match="needs replicas"):
+        simulate_designs(None, [], None)

@@ -10,7 +10,7 @@ import xarray as xr
 
 from condor.studies import scoring
 from condor.data.dataset import usable_samples
-from condor.studies.reference import Ensemble
+from condor.studies.recipes import Ensemble
 
 
 def test_paired_ratio_is_the_root_of_the_mean_ratio_and_pairing_narrows_it():

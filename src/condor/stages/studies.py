@@ -33,7 +33,7 @@ from condor.studies.convergence import convergence as convergence_study
 from condor.studies.fidelity import fidelity_table, paper_ensemble, prediction_row
 from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
-from condor.studies.reference import reference_ensemble
+from condor.studies.recipes import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
 from condor.surrogate.baselines import fit_baselines
 from condor.surrogate.samples import dataset_pixel_size, usable_samples
