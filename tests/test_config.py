@@ -189,6 +189,55 @@ def test_the_schema_takes_every_variant_setting_the_library_knows():
     assert config.surrogate["models"]["t"]["sum_weight"] == 1.0
 
 
+def test_the_schema_s_allowed_values_are_the_code_s():
+    """Every list of allowed values in the schema (scenes, solvers, networks, inputs,
+    upsampling, heads, losses, scalings, loss regions, replica uses, schedules, prediction
+    modes) is the list the code accepts, in the code's order: the code is its home, the schema
+    a copy that this test holds to it."""
+    from condor.data.inputs import INPUT_KINDS
+    from condor.model.scenes import PRESETS
+    from condor.model.simulate import SOLVERS
+    from condor.surrogate.modes import PREDICTION_MODES
+    from condor.surrogate.networks import UPSAMPLE_MODES
+    from condor.surrogate.train import (HEADS, LOSS_REGIONS, LOSSES, LR_SCHEDULES,
+                                        NETWORK_KINDS, REPLICA_USES, SCALINGS)
+
+    schema = load_schema()["properties"]
+    surrogate = schema["surrogate"]["properties"]
+    setting = surrogate["models"]["additionalProperties"]["properties"]
+    expected = {
+        "scene": (schema["scene"]["enum"], tuple(PRESETS)),
+        "simulation/solver": (schema["simulation"]["properties"]["solver"]["enum"],
+                              (*SOLVERS, None)),
+        "surrogate/eval_modes": (surrogate["eval_modes"]["items"]["enum"], PREDICTION_MODES),
+        "model": (setting["model"]["enum"], NETWORK_KINDS),
+        "upsample": (setting["upsample"]["enum"], UPSAMPLE_MODES),
+        "lr_schedule": (setting["lr_schedule"]["enum"], LR_SCHEDULES),
+        "inputs": (setting["inputs"]["enum"], INPUT_KINDS),
+        "prediction_mode": (setting["prediction_mode"]["enum"], PREDICTION_MODES),
+        "head": (setting["head"]["enum"], HEADS),
+        "loss": (setting["loss"]["enum"], LOSSES),
+        "scaling": (setting["scaling"]["enum"], SCALINGS),
+        "loss_region": (setting["loss_region"]["enum"], LOSS_REGIONS),
+        "replicas": (setting["replicas"]["enum"], REPLICA_USES),
+    }
+    for key, (schema_list, code) in expected.items():
+        assert tuple(schema_list) == tuple(code), key
+    # the stability study may run any solver (its default lists the faithful one first)
+    stability = schema["report"]["properties"]["stability_solvers"]["items"]["enum"]
+    assert sorted(stability) == sorted(SOLVERS)
+    enums = []
+
+    def walk(node):
+        if isinstance(node, dict):
+            enums.extend([node["enum"]] if "enum" in node else [])
+            for value in node.values():
+                walk(value)
+
+    walk(schema)
+    assert len(enums) == len(expected) + 1  # a new list of allowed values joins the table
+
+
 # --- combinations that would fail late (issue 33, items 10 and 11) -----------------------------
 
 @pytest.mark.parametrize("change, named", [
