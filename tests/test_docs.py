@@ -193,6 +193,17 @@ def test_a_long_page_says_why(doc: Path):
             "line near its top saying why")
 
 
+def test_the_readme_s_first_screen_is_for_a_newcomer():
+    """The README's first 40 lines (what a newcomer reads first): no commit hash, no command
+    or line wider than 100 characters, no table (its cells grow long; docs/results.md has it)."""
+    first = (REPO / "README.md").read_text().splitlines()[:40]
+    hashes = [word for line in first for word in re.findall(r"\b[0-9a-f]{7,40}\b", line)
+              if re.search(r"[a-f]", word) and re.search(r"[0-9]", word)]
+    assert not hashes, f"commit hashes on the README's first screen: {hashes}"
+    assert max(map(len, first)) <= 100
+    assert not any(line.lstrip().startswith("|") for line in first)
+
+
 def test_the_checks_catch_what_they_are_for():
     assert MACHINE_PATH.search("see /work/data/x.npz") and not MACHINE_PATH.search("a/work/b")
     assert PATH.findall("run `benchmarks/bench_x.py` and experiments/<study>/README.md.") == [
