@@ -12,7 +12,7 @@ mould (the median over repeats of the whole batch's time divided by its moulds):
 - stress: the spring network's stress channels (condor.data.inputs.stress_channels), solved
   afresh, in one thread and in one a CPU (the default: the moulds solve in parallel threads);
 - network forward: the network alone on the 8 planar transforms of each mould, as prediction
-  runs it ("eval": condor.surrogate.models.inference_copy, channels_last), at batch 1, the
+  runs it ("eval": condor.surrogate.networks.inference_copy, channels_last), at batch 1, the
   Predictor's default (PREDICT_BATCH) and 16;
 - network + symmetrisation: condor.surrogate.predict.run_model on inputs prepared: the forward,
   then the outputs moved back, decoded and averaged (the difference is their cost);
@@ -54,7 +54,7 @@ def random_checkpoint(variant: str, path: Path) -> Path:
     """A checkpoint of preset `variant`'s network at the default scene with random weights."""
     from condor.model.scenes import get_scene
     from condor.surrogate.checkpoint import save_checkpoint
-    from condor.surrogate.models import UNetGenerator
+    from condor.surrogate.networks import UNetGenerator
     from condor.surrogate.physics import PhysicsHead
     from condor.surrogate.samples import FieldScaling
     from condor.surrogate.variants import preset, train_config
@@ -94,18 +94,19 @@ def main() -> None:
     torch.set_num_threads(args.threads)
 
     import condor.data.inputs as inputs_mod
-    from condor.cli import _checkpoint_scene
-    from condor.data.moulds import MouldParams, input_channels
-    from condor.stages.dataset import make_mould
+    from condor.stages.predict import checkpoint_scene
+    from condor.moulds.paper import MouldParams
+    from condor.moulds.mould import input_channels
+    from condor.stages.build import make_mould
     from condor.surrogate.samples import INPUT_VARIABLES, apply_symmetry
-    from condor.surrogate.predict import (PREDICT_BATCH, Predictor, _inference_model, _network,
-                                          bfloat16_is_native, run_model)
+    from condor.surrogate.predict import PREDICT_BATCH, Predictor, run_model
+    from condor.surrogate.inference import bfloat16_is_native, inference_model, run_network
 
     with tempfile.TemporaryDirectory() as tmp:
         path = args.checkpoint or random_checkpoint(args.random, Path(tmp) / f"{args.random}.pt")
         predictor = Predictor(path, device="cpu", symmetrise=True if args.symmetrise else None,
                               precision=args.precision)
-    scene = _checkpoint_scene(predictor)
+    scene = checkpoint_scene(predictor)
     moulds = [make_mould(scene, args.seed, i, MouldParams()) for i in range(args.moulds)]
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
     extra = predictor.mould_arguments(moulds)
@@ -137,14 +138,14 @@ def main() -> None:
                                      for n in INPUT_VARIABLES[predictor.inputs_kind]], axis=1)
     x = torch.from_numpy(network_inputs)
     transforms = range(8) if predictor.symmetrise else range(1)
-    network = _inference_model(predictor.model, predictor.precision) \
+    network = inference_model(predictor.model, predictor.precision) \
         if predictor.mode == "eval" else predictor.model
     for batch in sorted({1, PREDICT_BATCH, 16}):
         def forward():
             with torch.inference_mode():
                 for start in range(0, len(x), batch):
                     part = x[start:start + batch]
-                    _network(network, torch.cat([apply_symmetry(
+                    run_network(network, torch.cat([apply_symmetry(
                         k, inputs=part, input_kind=predictor.inputs_kind)[0] for k in transforms]))
 
         def symmetrised():

@@ -36,7 +36,7 @@ from condor.model.anneal import anneal, available_threads
 from condor.model.energy import DELTA, bond_energies, energy_gradient, random_orientations
 from condor.model.lattice import build_lattice
 from condor.model.lbfgs import minimise_lbfgs
-from condor.data.moulds import generate_mould
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import PAPER_BOX, get_scene
 from condor.data.seeds import replica_seed
 from condor.model.simulate import DEFAULT_SOLVER, simulate, warm_up
@@ -111,7 +111,7 @@ def parallel_speedup(threads: int, repeats: int = 5) -> dict:
 
 def solve_costs(scene_name: str, seed: int, solvers) -> list[dict]:
     scene = get_scene(scene_name)
-    mould = generate_mould(seed, 0, scene.box)
+    mould = generate_mould(seed, 0, scene)
     sim_seed = replica_seed(seed, 0, 0)
     rows = []
     for solver in solvers:
@@ -127,7 +127,7 @@ def solve_costs(scene_name: str, seed: int, solvers) -> list[dict]:
 
 def lbfgs_convergence(scene_name: str, seed: int) -> dict:
     scene = get_scene(scene_name)
-    mould = generate_mould(seed, 0, scene.box)
+    mould = generate_mould(seed, 0, scene)
     lat = build_lattice(mould.polygon, mould.tethers, scene.depth)
     sim_seed = replica_seed(seed, 0, 0)
     ori = random_orientations(lat.n_cells, np.random.default_rng([sim_seed, 1]))

@@ -15,7 +15,7 @@ import time
 
 import torch
 
-from condor.surrogate.models import UNetConfig, UNetGenerator, count_parameters_like_paper
+from condor.surrogate.networks import UNetConfig, UNetGenerator, count_parameters_like_paper
 
 VARIANTS = {
     "paper pix2pix 256px": UNetConfig.paper(),

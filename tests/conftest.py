@@ -107,7 +107,7 @@ def pytest_collection_modifyitems(items):
 
 
 def _warm_numba(folder):
-    from condor.stages.dataset import warm_kernels
+    from condor.stages.build import warm_kernels
 
     warm_kernels()
     folder.mkdir()

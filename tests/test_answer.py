@@ -12,8 +12,8 @@ import pytest
 from shapely.geometry import box as shapely_box
 
 from condor import findings
-from condor.data.drawings import place_mould
-from condor.data.moulds import generate_mould
+from condor.moulds.place import place_mould
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.surrogate.answer import domain_table, domain_verdict
 
@@ -87,8 +87,7 @@ def test_per_statistic_columns_name_the_statistics_whose_spreads_err_most(tmp_pa
 
 
 def test_a_mould_inside_the_domain_needs_no_measurement():
-    mould = generate_mould(7, 3, box=SCENE.box, area_fraction=SCENE.area_fraction,
-                           max_extent=SCENE.max_extent)
+    mould = generate_mould(7, 3, SCENE)
     table = domain_table(mould, SCENE)
     if not table["inside"].all():
         pytest.skip("this generated mould has a tether the tiny grid misses")
@@ -238,7 +237,7 @@ def test_a_network_is_known_by_its_weights_not_its_file(tmp_path):
     import torch
 
     from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint, weights_sha256
-    from condor.surrogate.models import UNetConfig, UNetGenerator
+    from condor.surrogate.networks import UNetConfig, UNetGenerator
 
     net = UNetGenerator(UNetConfig(size=16, base=4, depth=3), torch.Generator().manual_seed(0))
     state = {"generator": net.state_dict(), "history": [{"seconds": 1.0}]}

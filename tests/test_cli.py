@@ -14,7 +14,7 @@ import pytest
 from condor import cli
 from conftest import condor_cli
 from condor.data.fields import FIELD_NAMES
-from condor.data.moulds import load_json
+from condor.moulds.mould import load_json
 from condor.model.simulate import SimResult
 from condor.data.store import StoreSpec, assign_splits, create_store, write_inputs, write_sample
 

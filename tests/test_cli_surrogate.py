@@ -17,10 +17,10 @@ import xarray as xr
 from PIL import Image
 
 from condor import cli
-from condor.data.moulds import input_channels, load_json
+from condor.moulds.mould import input_channels, load_json
 from condor.data.store import StoreSpec, create_store, open_store, write_inputs, write_sample
 from condor.surrogate.checkpoint import load_checkpoint, save_checkpoint
-from condor.surrogate.models import PREDICTION_MODES
+from condor.surrogate.networks import PREDICTION_MODES
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
 
@@ -60,26 +60,50 @@ def run_main(argv):
     return exit_info.value.code
 
 
-def test_parser_choices_agree_with_library():
-    import importlib
+def test_the_parser_offers_the_library_s_choices_without_importing_torch():
+    """The parser's --mode and --precision choices are condor.surrogate.modes' (the networks'
+    and the Predictor's own), and building it does not import torch (`condor --help` stays
+    quick)."""
+    import subprocess
+    import sys
 
-    predict_module = importlib.import_module("condor.surrogate.predict")  # the module, not
-    # condor.surrogate's function of that name
+    from condor.surrogate import inference, networks
 
-    assert cli.PREDICTION_MODES == PREDICTION_MODES
-    assert (cli.AUTO_PRECISION, cli.PRECISIONS, cli.DEFAULT_PRECISION) == (
-        predict_module.AUTO_PRECISION, predict_module.PRECISIONS,
-        predict_module.DEFAULT_PRECISION)
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices["predict"]
+    choices = {a.dest: tuple(a.choices) for a in sub._actions if a.choices}
+    assert choices["mode"] == networks.PREDICTION_MODES == PREDICTION_MODES
+    assert choices["precision"] == (inference.AUTO_PRECISION, *inference.PRECISIONS)
+    code = "import sys, condor.cli; condor.cli.build_parser(); print('torch' in sys.modules)"
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert proc.stdout.strip() == "False"
 
 
 def test_train_writes_checkpoint(trained):
     _, checkpoint = trained
     state = load_checkpoint(checkpoint)
-    assert state["epoch"] == 2 and state["config"]["model"] == "unet_l1"
+    assert state["epoch"] == 2 and state["config"]["network"] == "unet_l1"
     assert state["generator_config"]["size"] == SIZE and state["generator_config"]["base"] == 8
     assert state["data"]["pixel_size"] == pytest.approx(BOX / SIZE)
     assert state["data"]["n_train"] == 12  # 6 of every 8 samples are "train"
     assert len(state["data"]["fingerprint"]) == 64  # of the data it was trained on
+
+
+def test_a_checkpoint_written_before_network_was_named_so_still_loads(trained, tmp_path):
+    """Checkpoints record TrainConfig; its `model` became `network` (the physics is
+    condor.model): one written with `model` loads with `network`, and predicts."""
+    import torch
+
+    _, checkpoint = trained
+    state = torch.load(checkpoint, weights_only=True)
+    state["config"]["model"] = state["config"].pop("network")
+    old = tmp_path / "old.pt"
+    torch.save(state, old)
+    loaded = load_checkpoint(old)
+    assert loaded["config"]["network"] == "unet_l1" and "model" not in loaded["config"]
+    inputs = np.zeros((2, SIZE, SIZE), np.uint8)
+    inputs[0, 8:24, 8:24] = 1
+    np.testing.assert_array_equal(predict(old, inputs).raw, predict(checkpoint, inputs).raw)
 
 
 def test_train_never_overwrites_and_resumes_only_an_interrupted_run(trained, tmp_path, capsys,
@@ -481,7 +505,7 @@ def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
     assert "yours " in captured.out and " -> best " in captured.out
     for phase in ("phase 1/4", "phase 2/4", "phase 3/4", "phase 4/4"):
         assert phase in captured.err  # one line per phase, not on a terminal
-    from condor.data.drawings import load_mould
+    from condor.moulds.read import load_mould
     from condor.model.scenes import get_scene
 
     placed = load_mould(mould, get_scene("default"), l0_um=16, fit="extent")  # box 31.25 = BOX

@@ -12,7 +12,7 @@ import pytest
 import torch
 
 import condor
-from condor.data import reader as dataset
+from condor.data import dataset
 from condor.data.store import StoreSpec, create_store, sample_index, write_inputs, write_sample
 
 PIXELS = 8
@@ -118,7 +118,7 @@ def test_hardware_names_the_cpu_target_numba_compiles_for():
     # machines of one model name apart
     from llvmlite.binding import get_host_cpu_name
 
-    from condor.stages.dataset import hardware
+    from condor.stages.build import hardware
 
     record = hardware()
     assert f"({get_host_cpu_name()})" in record
@@ -244,7 +244,7 @@ def test_dir_condor_lists_what_it_offers():
 def mould_store(tmp_path_factory):
     """A tiny store whose moulds the mould stage wrote (no simulation): (config, path)."""
     from condor.config import Config
-    from condor.stages.dataset import make_moulds
+    from condor.stages.build import make_moulds
 
     config = Config.from_dict({"scene": "tiny", "seed": 11, "n_moulds": 6, "split": {"test": 2}})
     folder = tmp_path_factory.mktemp("geometry")
@@ -255,15 +255,14 @@ def mould_store(tmp_path_factory):
 
 
 def test_mould_geometry_is_the_generators_to_the_last_bit_in_every_replica(mould_store):
-    from condor.data.moulds import generate_mould
+    from condor.moulds.paper import generate_mould
 
     config, path = mould_store
     ds = condor.open_dataset(path)
     scene = config.scene
     for sample in range(ds.sizes["sample"]):
         mould = int(ds["mould"].values[sample])
-        made = generate_mould(config.seed, mould, box=scene.box, params=config.mould_params(),
-                              area_fraction=scene.area_fraction, max_extent=scene.max_extent)
+        made = generate_mould(config.seed, mould, scene, params=config.mould_params())
         polygon, tethers = dataset.mould_geometry(ds, sample)
         assert polygon.equals_exact(made.polygon, 0.0)
         np.testing.assert_array_equal(shapely.get_coordinates(polygon),
@@ -280,7 +279,7 @@ def test_the_stored_inputs_are_the_recovered_geometry_rasterised_on_the_x_y_coor
         mould_store):
     """An independent check of the geometry and its frame: each pixel centre (the store's own
     x and y coordinates) inside the outline and no post is a mould pixel, inside a post's
-    circle a tether pixel (the rule of condor.data.moulds.input_channels, written out)."""
+    circle a tether pixel (the rule of condor.moulds.mould.input_channels, written out)."""
     _, path = mould_store
     ds = condor.open_dataset(path)
     x, y = np.meshgrid(ds["x"].values, ds["y"].values)  # [y, x], like the inputs

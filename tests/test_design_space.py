@@ -10,7 +10,7 @@ from shapely import affinity
 from condor.design.objectives import parse_objective
 from condor.design.space import DesignSpace, default_space, symmetry_group
 from condor.model.lattice import build_lattice
-from condor.data.moulds import validate_mould
+from condor.moulds.mould import check_mould
 from condor.model.scenes import get_scene
 from condor.model.simulate import simulate
 
@@ -20,7 +20,7 @@ SYMMETRIES = ["none", "single_mirror", "double_mirror", "cyclic:3", "dihedral:4"
 
 def check_fabrication_limits(space: DesignSpace, mould):
     """The limits, recomputed from the mould alone."""
-    validate_mould(mould)
+    check_mould(mould)
     box = space.box
     assert mould.polygon.area == pytest.approx(space.area_fraction * box**2, rel=1e-9)
     xmin, ymin, xmax, ymax = mould.polygon.bounds
@@ -144,7 +144,7 @@ def test_the_simulator_accepts_design_moulds():
 
 
 def test_design_moulds_round_trip_through_the_mould_file_that_condor_simulate_reads(tmp_path):
-    from condor.data.moulds import load_json, save_json
+    from condor.moulds.mould import load_json, save_json
 
     space = DesignSpace.from_scene(SCENE, symmetry="none")
     for i, x in enumerate(space.random_vectors(np.random.default_rng(5), 5)):
@@ -161,7 +161,7 @@ def test_constrained_space_keeps_your_footprint_and_post_count():
     from shapely.geometry import Point, box as shapely_box
 
     from condor.design import constrained_space
-    from condor.data.drawings import place_mould
+    from condor.moulds.place import place_mould
     from condor.model.scenes import get_scene
 
     scene = get_scene("default")

@@ -1,4 +1,4 @@
-"""Tests for condor.data.drawings: a user's own mould from JSON, SVG and DXF, its placement in a
+"""Tests for condor.moulds.read: a user's own mould from JSON, SVG and DXF, its placement in a
 scene, the training-domain check, and the SVG/DXF hand-over drawings."""
 
 from __future__ import annotations
@@ -13,9 +13,15 @@ import pytest
 import shapely
 from shapely.geometry import Point, Polygon, box as shapely_box
 
-from condor.data import drawings as D
 from condor.model.lattice import build_lattice
-from condor.data.moulds import InvalidMouldError, Mould, generate_mould, input_channels, save_json
+from condor.moulds.domain import OutsideTrainingDomainError, training_domain_check
+from condor.moulds.mould import DrawingError, InvalidMouldError, Mould, input_channels, save_json
+from condor.moulds.paper import generate_mould
+from condor.moulds.place import place_mould
+from condor.moulds.read import load_mould, load_placement, read_drawing
+from condor.moulds.shapes import FLATTEN_TOLERANCE_L0
+from condor.moulds.units import DXF_UNITS_PROPERTY
+from condor.moulds.write import write_dxf, write_svg
 from condor.model.scenes import get_scene
 from condor.model.simulate import simulate
 
@@ -98,14 +104,14 @@ def _simulate_and_rasterise(mould: Mould):
 
 
 def test_svg_drawn_from_scratch_is_placed_simulated_and_rasterised(tmp_path):
-    mould = D.load_mould(_write(tmp_path / "m.svg", SCRATCH_SVG), TINY, l0_um=L0_UM)
+    mould = load_mould(_write(tmp_path / "m.svg", SCRATCH_SVG), TINY, l0_um=L0_UM)
     _assert_scratch_geometry(mould)
     _simulate_and_rasterise(mould)
 
 
 @pytest.mark.parametrize("lines", [False, True], ids=["polyline", "four lines"])
 def test_dxf_drawn_from_scratch_is_placed_simulated_and_rasterised(tmp_path, lines):
-    mould = D.load_mould(_scratch_dxf(tmp_path / "m.dxf", lines), TINY, l0_um=L0_UM)
+    mould = load_mould(_scratch_dxf(tmp_path / "m.dxf", lines), TINY, l0_um=L0_UM)
     _assert_scratch_geometry(mould)
     if not lines:
         _simulate_and_rasterise(mould)
@@ -115,11 +121,11 @@ def test_minimal_json_in_micrometres(tmp_path):
     outline = {"outline": [[25, 15], [225, 15], [225, 135], [25, 135]],
                "tethers": [[75, 105, 16], [175, 45, 24]], "units": "um"}
     path = _write(tmp_path / "m.json", json.dumps(outline))
-    _assert_scratch_geometry(D.load_mould(path, TINY, l0_um=L0_UM))
+    _assert_scratch_geometry(load_mould(path, TINY, l0_um=L0_UM))
     # the same outline in l0 needs no l0_um
     in_l0 = {"outline": [[0, 0], [12.5, 0], [12.5, 7.5], [0, 7.5]],
              "tethers": [[3.125, 5.625, 1.0], [9.375, 1.875, 1.5]], "units": "l0"}
-    _assert_scratch_geometry(D.load_mould(_write(tmp_path / "l0.json", json.dumps(in_l0)), TINY))
+    _assert_scratch_geometry(load_mould(_write(tmp_path / "l0.json", json.dumps(in_l0)), TINY))
 
 
 # --------------------------------------------------------------------------- units
@@ -131,13 +137,13 @@ def test_css_px_rule_by_hand(tmp_path):
     svg = ('<svg xmlns="http://www.w3.org/2000/svg" width="100" height="60" '
            'viewBox="0 0 50 30"><rect x="5" y="5" width="10" height="6"/></svg>')
     path = _write(tmp_path / "px.svg", svg)
-    mould = D.load_mould(path, TINY, l0_um=2 * 25400 / 96)
+    mould = load_mould(path, TINY, l0_um=2 * 25400 / 96)
     xmin, ymin, xmax, ymax = mould.polygon.bounds
     assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 6.0), rel=1e-12)
-    with pytest.raises(D.DrawingError, match="CSS px"):
-        D.load_mould(path, TINY)
+    with pytest.raises(DrawingError, match="CSS px"):
+        load_mould(path, TINY)
     # declared by the caller: user units are l0
-    mould = D.load_mould(path, TINY, units="l0")
+    mould = load_mould(path, TINY, units="l0")
     assert mould.polygon.area == pytest.approx(60.0, rel=1e-12)
 
 
@@ -147,7 +153,7 @@ def test_inches_in_dxf_by_hand(tmp_path):
     doc = ezdxf.new(units=1)
     doc.modelspace().add_lwpolyline([(0, 0), (0.01, 0), (0.01, 0.005), (0, 0.005)], close=True)
     doc.saveas(tmp_path / "in.dxf")
-    mould = D.load_mould(tmp_path / "in.dxf", TINY, l0_um=25.4)
+    mould = load_mould(tmp_path / "in.dxf", TINY, l0_um=25.4)
     xmin, ymin, xmax, ymax = mould.polygon.bounds
     assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 5.0), rel=1e-9)
 
@@ -158,16 +164,16 @@ def test_dxf_in_metres_names_its_unit(tmp_path):
     doc = ezdxf.new(units=6)
     doc.modelspace().add_lwpolyline([(0, 0), (4e-4, 0), (4e-4, 3e-4), (0, 3e-4)], close=True)
     doc.saveas(tmp_path / "m.dxf")
-    with pytest.raises(D.DrawingError, match=r"is drawn in meters \(\$INSUNITS = 6, read as "
+    with pytest.raises(DrawingError, match=r"is drawn in meters \(\$INSUNITS = 6, read as "
                                              r"1000 mm a unit\): give the cell spacing .* with --l0-um"):
-        D.load_mould(tmp_path / "m.dxf", TINY)
-    xmin, ymin, xmax, ymax = D.load_mould(tmp_path / "m.dxf", TINY, l0_um=40).polygon.bounds
+        load_mould(tmp_path / "m.dxf", TINY)
+    xmin, ymin, xmax, ymax = load_mould(tmp_path / "m.dxf", TINY, l0_um=40).polygon.bounds
     assert (xmax - xmin, ymax - ymin) == pytest.approx((10.0, 7.5), rel=1e-9)
     doc.units = 0  # unitless: the message says the unit came from the units argument
     doc.saveas(tmp_path / "bare.dxf")
-    with pytest.raises(D.DrawingError, match=r"is drawn in mm \(\$INSUNITS = 0, unitless: "
+    with pytest.raises(DrawingError, match=r"is drawn in mm \(\$INSUNITS = 0, unitless: "
                                              r"--units mm says so\)"):
-        D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
+        load_mould(tmp_path / "bare.dxf", TINY, units="mm")
 
 
 def test_unitless_dxf_needs_units(tmp_path):
@@ -175,12 +181,12 @@ def test_unitless_dxf_needs_units(tmp_path):
     doc.units = 0
     doc.modelspace().add_lwpolyline([(0, 0), (10, 0), (10, 5), (0, 5)], close=True)
     doc.saveas(tmp_path / "bare.dxf")
-    with pytest.raises(D.DrawingError, match=r"does not state its units .*pass --units"):
-        D.load_mould(tmp_path / "bare.dxf", TINY)
-    assert D.load_mould(tmp_path / "bare.dxf", TINY, units="l0").polygon.area == \
+    with pytest.raises(DrawingError, match=r"does not state its units .*pass --units"):
+        load_mould(tmp_path / "bare.dxf", TINY)
+    assert load_mould(tmp_path / "bare.dxf", TINY, units="l0").polygon.area == \
         pytest.approx(50.0)
-    with pytest.raises(D.DrawingError, match="with --l0-um"):
-        D.load_mould(tmp_path / "bare.dxf", TINY, units="mm")
+    with pytest.raises(DrawingError, match="with --l0-um"):
+        load_mould(tmp_path / "bare.dxf", TINY, units="mm")
 
 
 # --------------------------------------------------------------------------- refusals
@@ -218,7 +224,7 @@ SQUARE = [[0, 0], [10, 0], [10, 10], [0, 10]]
 def test_refusals_name_the_reason(tmp_path, outline, tethers, holes, message):
     path = _outline(tmp_path / "bad.json", outline, tethers, holes=holes)
     with pytest.raises(InvalidMouldError, match=message) as caught:
-        D.load_mould(path, TINY)
+        load_mould(path, TINY)
     assert "bad.json" in str(caught.value)
     assert isinstance(caught.value, ValueError)
 
@@ -226,7 +232,7 @@ def test_refusals_name_the_reason(tmp_path, outline, tethers, holes, message):
 def test_too_large_in_mm_says_both_units(tmp_path):
     path = _outline(tmp_path / "big.json", [[0, 0], [1, 0], [1, 0.5], [0, 0.5]], units="mm")
     with pytest.raises(InvalidMouldError, match=r"50 l0 = 1 mm wide .*15.62 l0 = 0.3125 mm"):
-        D.load_mould(path, TINY, l0_um=20.0)
+        load_mould(path, TINY, l0_um=20.0)
 
 
 SVG_HEAD = '<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 20 20" data-units="l0">'
@@ -246,7 +252,7 @@ SVG_HEAD = '<svg xmlns="http://www.w3.org/2000/svg" viewBox="0 0 20 20" data-uni
 def test_svg_refusals_name_the_shapes(tmp_path, body, message):
     path = _write(tmp_path / "bad.svg", SVG_HEAD + body + "</svg>")
     with pytest.raises(InvalidMouldError, match=message):
-        D.load_mould(path, TINY)
+        load_mould(path, TINY)
 
 
 @pytest.mark.parametrize("kwargs, message", [
@@ -258,36 +264,36 @@ def test_svg_refusals_name_the_shapes(tmp_path, body, message):
 ])
 def test_bad_arguments_are_named(tmp_path, kwargs, message):
     path = _write(tmp_path / "m.svg", SVG_HEAD + '<rect x="1" y="1" width="9" height="9"/></svg>')
-    with pytest.raises(D.DrawingError, match=message):
-        D.load_mould(path, TINY, **kwargs)
+    with pytest.raises(DrawingError, match=message):
+        load_mould(path, TINY, **kwargs)
 
 
 def test_file_level_errors(tmp_path):
-    with pytest.raises(D.DrawingError, match="unknown mould file type '.png'"):
-        D.load_mould(_write(tmp_path / "m.png", "x"), TINY)
-    with pytest.raises(D.DrawingError, match="not valid JSON"):
-        D.load_mould(_write(tmp_path / "m.json", "{"), TINY)
-    with pytest.raises(D.DrawingError, match=r"unknown key\(s\) \['tether'\]"):
-        D.load_mould(_write(tmp_path / "k.json", json.dumps(
+    with pytest.raises(DrawingError, match="unknown mould file type '.png'"):
+        load_mould(_write(tmp_path / "m.png", "x"), TINY)
+    with pytest.raises(DrawingError, match="not valid JSON"):
+        load_mould(_write(tmp_path / "m.json", "{"), TINY)
+    with pytest.raises(DrawingError, match=r"unknown key\(s\) \['tether'\]"):
+        load_mould(_write(tmp_path / "k.json", json.dumps(
             {"outline": SQUARE, "tether": [], "units": "l0"})), TINY)
-    with pytest.raises(D.DrawingError, match=r"does not state its units \('units'\)"):
-        D.load_mould(_write(tmp_path / "u.json", json.dumps({"outline": SQUARE})), TINY)
-    with pytest.raises(D.DrawingError, match="is drawn in mm .*--l0-um"):
-        D.load_mould(_outline(tmp_path / "mm.json", SQUARE, units="mm"), TINY)
-    with pytest.raises(D.DrawingError, match="not a readable SVG"):
-        D.load_mould(_write(tmp_path / "x.svg", "<svg"), TINY)
-    with pytest.raises(D.DrawingError, match="not a readable DXF"):
-        D.load_mould(_write(tmp_path / "x.dxf", "garbage"), TINY)
+    with pytest.raises(DrawingError, match=r"does not state its units \('units'\)"):
+        load_mould(_write(tmp_path / "u.json", json.dumps({"outline": SQUARE})), TINY)
+    with pytest.raises(DrawingError, match="is drawn in mm .*--l0-um"):
+        load_mould(_outline(tmp_path / "mm.json", SQUARE, units="mm"), TINY)
+    with pytest.raises(DrawingError, match="not a readable SVG"):
+        load_mould(_write(tmp_path / "x.svg", "<svg"), TINY)
+    with pytest.raises(DrawingError, match="not a readable DXF"):
+        load_mould(_write(tmp_path / "x.dxf", "garbage"), TINY)
 
 
 def test_generator_json_is_read_as_before(tmp_path):
-    mould = generate_mould(3, 1, box=TINY.box)
+    mould = generate_mould(3, 1, TINY)
     save_json(mould, tmp_path / "g.json")
-    again = D.load_mould(tmp_path / "g.json", TINY)
+    again = load_mould(tmp_path / "g.json", TINY)
     assert again.to_dict() == mould.to_dict()
-    assert D.load_mould(tmp_path / "g.json", TINY, fit=True).to_dict() == mould.to_dict()
+    assert load_mould(tmp_path / "g.json", TINY, fit=True).to_dict() == mould.to_dict()
     with pytest.raises(InvalidMouldError, match=r"pass the matching scene \(--scene"):
-        D.load_mould(tmp_path / "g.json", get_scene("default"))
+        load_mould(tmp_path / "g.json", get_scene("default"))
 
 
 # --------------------------------------------------------------------------- curves, holes
@@ -298,13 +304,13 @@ def test_arcs_are_flattened_within_the_tolerance(tmp_path):
     and every chord's sagitta (radius minus the distance of its midpoint) is at most
     FLATTEN_TOLERANCE_L0, and not absurdly smaller."""
     svg = SVG_HEAD + '<path d="M 2 7 A 5 5 0 0 1 12 7 A 5 5 0 0 1 2 7 Z"/></svg>'
-    mould = D.load_mould(_write(tmp_path / "round.svg", svg), TINY)
+    mould = load_mould(_write(tmp_path / "round.svg", svg), TINY)
     xy = np.asarray(mould.polygon.exterior.coords)
     centre = np.array([TINY.box / 2, TINY.box / 2])
     np.testing.assert_allclose(np.hypot(*(xy - centre).T), 5.0, atol=1e-9)
     sagitta = 5.0 - np.hypot(*(0.5 * (xy[1:] + xy[:-1]) - centre).T)
-    assert sagitta.max() <= D.FLATTEN_TOLERANCE_L0
-    assert sagitta.max() > D.FLATTEN_TOLERANCE_L0 / 8
+    assert sagitta.max() <= FLATTEN_TOLERANCE_L0
+    assert sagitta.max() > FLATTEN_TOLERANCE_L0 / 8
 
 
 def test_bezier_outline_is_within_the_tolerance(tmp_path):
@@ -313,18 +319,18 @@ def test_bezier_outline_is_within_the_tolerance(tmp_path):
     p = np.array([[2, 8], [2, 0], [12, 0], [12, 8]], float)
     svg = SVG_HEAD + (f'<path d="M {p[0, 0]} {p[0, 1]} C {p[1, 0]} {p[1, 1]} {p[2, 0]} '
                       f'{p[2, 1]} {p[3, 0]} {p[3, 1]} Z"/></svg>')
-    drawing = D.read_drawing(_write(tmp_path / "bez.svg", svg))
+    drawing = read_drawing(_write(tmp_path / "bez.svg", svg))
     t = np.linspace(0, 1, 2001)[:, None]
     curve = ((1 - t) ** 3 * p[0] + 3 * (1 - t) ** 2 * t * p[1] + 3 * (1 - t) * t**2 * p[2]
              + t**3 * p[3]) * [1, -1]  # read_drawing mirrors SVG's y
     distance = shapely.distance(drawing.polygon.exterior, shapely.points(curve))
-    assert distance.max() <= D.FLATTEN_TOLERANCE_L0 * 1.01
+    assert distance.max() <= FLATTEN_TOLERANCE_L0 * 1.01
 
 
 def test_closed_shapes_inside_the_outline_are_holes(tmp_path):
     svg = SVG_HEAD + ('<path d="M 1 1 H 13 V 13 H 1 Z M 5 5 V 9 H 9 V 5 Z"/>'
                       '<circle cx="3" cy="3" r="1"/></svg>')
-    mould = D.load_mould(_write(tmp_path / "hole.svg", svg), TINY)
+    mould = load_mould(_write(tmp_path / "hole.svg", svg), TINY)
     assert len(mould.polygon.interiors) == 1
     assert mould.polygon.area == pytest.approx(144 - 16)
     channels = input_channels(mould, TINY.pixels)
@@ -334,11 +340,11 @@ def test_closed_shapes_inside_the_outline_are_holes(tmp_path):
 
 def test_a_lone_enclosing_circle_is_a_round_outline(tmp_path):
     svg = SVG_HEAD + '<circle cx="8" cy="8" r="6"/><circle cx="8" cy="8" r="1"/></svg>'
-    mould = D.load_mould(_write(tmp_path / "round.svg", svg), TINY)
+    mould = load_mould(_write(tmp_path / "round.svg", svg), TINY)
     # an inscribed polygon whose chords have sagitta <= tol: short of the disk by less
     # than perimeter * tol
     exact = math.pi * 36
-    assert exact - 2 * math.pi * 6 * D.FLATTEN_TOLERANCE_L0 < mould.polygon.area <= exact
+    assert exact - 2 * math.pi * 6 * FLATTEN_TOLERANCE_L0 < mould.polygon.area <= exact
     np.testing.assert_allclose(mould.tethers, [[TINY.box / 2, TINY.box / 2, 1.0]], atol=1e-9)
 
 
@@ -348,8 +354,8 @@ def test_a_lone_enclosing_circle_is_a_round_outline(tmp_path):
 def test_fit_scales_to_the_training_area_keeping_the_shape(tmp_path):
     path = _outline(tmp_path / "small.json", [[0, 0], [4, 0], [4, 3], [0, 3]],
                     tethers=[[1, 1.5, 0.5], [3, 1.5, 0.25]])
-    kept = D.load_mould(path, TINY)
-    fitted = D.load_mould(path, TINY, fit=True)
+    kept = load_mould(path, TINY)
+    fitted = load_mould(path, TINY, fit=True)
     target = TINY.area_fraction * TINY.box**2
     assert fitted.polygon.area == pytest.approx(target, rel=1e-12)
     factor = math.sqrt(target / 12.0)
@@ -359,18 +365,18 @@ def test_fit_scales_to_the_training_area_keeping_the_shape(tmp_path):
     centre = TINY.box / 2
     np.testing.assert_allclose(fitted.tethers[:, :2] - centre,
                                (kept.tethers[:, :2] - centre) * factor, atol=1e-9)
-    assert not any("area" in w for w in D.training_domain_check(fitted, TINY))
-    with pytest.raises(D.OutsideTrainingDomainError, match=r"area is 0.0492 of the box"):
-        D.training_domain_check(kept, TINY)
+    assert not any("area" in w for w in training_domain_check(fitted, TINY))
+    with pytest.raises(OutsideTrainingDomainError, match=r"area is 0.0492 of the box"):
+        training_domain_check(kept, TINY)
     # too elongated for the training area: the area fit is capped by the extent fit, so it
     # still fits the window, its larger side 0.9 of the box
     too_long = _outline(tmp_path / "long.json", [[0, 0], [14, 0], [14, 2], [0, 2]])
-    placed = D.load_placement(too_long, TINY, fit=True)
+    placed = load_placement(too_long, TINY, fit=True)
     assert placed.fit == "area" and placed.scale == pytest.approx(0.9 * TINY.box / 14, rel=1e-12)
     xmin, ymin, xmax, ymax = placed.mould.polygon.bounds
     assert (xmax - xmin, ymax - ymin) == pytest.approx((0.9 * TINY.box, 0.9 * TINY.box / 7))
-    with pytest.raises(D.OutsideTrainingDomainError, match="area is"):
-        D.training_domain_check(placed.mould, TINY)
+    with pytest.raises(OutsideTrainingDomainError, match="area is"):
+        training_domain_check(placed.mould, TINY)
 
 
 def _square_mould(fraction, tethers=()) -> Mould:
@@ -381,18 +387,18 @@ def _square_mould(fraction, tethers=()) -> Mould:
 
 
 def test_training_domain_rules():
-    assert D.training_domain_check(_square_mould(0.4 * 1.05), TINY) == []
-    (warning,) = D.training_domain_check(_square_mould(0.4 * 1.3), TINY)
+    assert training_domain_check(_square_mould(0.4 * 1.05), TINY) == []
+    (warning,) = training_domain_check(_square_mould(0.4 * 1.3), TINY)
     assert "+30%" in warning and "extrapolates" in warning
-    (warning,) = D.training_domain_check(_square_mould(0.4 * 0.7), TINY)
+    (warning,) = training_domain_check(_square_mould(0.4 * 0.7), TINY)
     assert "-30%" in warning
     for fraction in (0.4 * 0.45, 0.4 * 1.55):
-        with pytest.raises(D.OutsideTrainingDomainError, match="simulate it"):
-            D.training_domain_check(_square_mould(fraction), TINY)
-    with pytest.raises(D.OutsideTrainingDomainError, match="15.625 l0 box, the 'default'"):
-        D.training_domain_check(_square_mould(0.4), get_scene("default"))
+        with pytest.raises(OutsideTrainingDomainError, match="simulate it"):
+            training_domain_check(_square_mould(fraction), TINY)
+    with pytest.raises(OutsideTrainingDomainError, match="15.625 l0 box, the 'default'"):
+        training_domain_check(_square_mould(0.4), get_scene("default"))
     c = TINY.box / 2
-    warnings = D.training_domain_check(_square_mould(0.4, [[c, c, 3.0], [c - 4, c, 0.1]]), TINY)
+    warnings = training_domain_check(_square_mould(0.4, [[c, c, 3.0], [c - 4, c, 0.1]]), TINY)
     assert any("2 tethers" in w for w in warnings)
     assert any("radii 3, 0.1 l0 (tethers 0, 1)" in w for w in warnings)
 
@@ -413,15 +419,14 @@ def test_hidden_tethers_match_the_input_channel():
         if input_channels(single, TINY.pixels)[1].sum() == 0:
             hidden.append(i)
     assert hidden == [0]
-    (warning,) = [w for w in D.training_domain_check(mould, TINY) if "pixel" in w]
+    (warning,) = [w for w in training_domain_check(mould, TINY) if "pixel" in w]
     assert warning.startswith("tethers 0 cover no pixel centre")
 
 
 def test_generated_moulds_are_inside_the_training_domain():
     for i in range(40):
-        mould = generate_mould(5, i, box=TINY.box, area_fraction=TINY.area_fraction,
-                               max_extent=TINY.max_extent)
-        warnings = [w for w in D.training_domain_check(mould, TINY) if "pixel" not in w]
+        mould = generate_mould(5, i, TINY)
+        warnings = [w for w in training_domain_check(mould, TINY) if "pixel" not in w]
         assert warnings == [], (i, warnings)
 
 
@@ -436,24 +441,24 @@ def _user_mould_with_hole() -> Mould:
 
 
 @pytest.mark.parametrize("l0_um", [None, 15.0])
-@pytest.mark.parametrize("writer", [D.write_svg, D.write_dxf], ids=["svg", "dxf"])
+@pytest.mark.parametrize("writer", [write_svg, write_dxf], ids=["svg", "dxf"])
 def test_written_drawings_read_back_to_the_same_geometry(tmp_path, writer, l0_um):
-    moulds = [generate_mould(7, i, box=TINY.box) for i in range(4)]
-    moulds.append(D.place_mould(_user_mould_with_hole().polygon,
+    moulds = [generate_mould(7, i, TINY) for i in range(4)]
+    moulds.append(place_mould(_user_mould_with_hole().polygon,
                                 _user_mould_with_hole().tethers, TINY))
-    suffix = ".svg" if writer is D.write_svg else ".dxf"
+    suffix = ".svg" if writer is write_svg else ".dxf"
     for k, mould in enumerate(moulds):
         path = tmp_path / f"m{k}{suffix}"
         writer(mould, path, l0_um=l0_um)
-        again = D.load_mould(path, TINY, l0_um=l0_um)
+        again = load_mould(path, TINY, l0_um=l0_um)
         assert again.polygon.symmetric_difference(mould.polygon).area < 1e-6
         assert len(again.polygon.interiors) == len(mould.polygon.interiors)
         np.testing.assert_allclose(again.tethers, mould.tethers, atol=1e-7)
 
 
 def test_svg_opens_as_a_drawing_with_dimensions(tmp_path):
-    mould = generate_mould(7, 2, box=TINY.box)
-    D.write_svg(mould, tmp_path / "m.svg", l0_um=20.0)
+    mould = generate_mould(7, 2, TINY)
+    write_svg(mould, tmp_path / "m.svg", l0_um=20.0)
     root = ElementTree.parse(tmp_path / "m.svg").getroot()  # well-formed XML
     assert root.tag == SVG_NS + "svg" and root.get("data-units") == "mm"
     assert float(root.get("width")) > 100  # a browser shows it at a usable size
@@ -477,17 +482,17 @@ def test_svg_opens_as_a_drawing_with_dimensions(tmp_path):
 
 
 def test_dxf_is_at_true_size_in_mm(tmp_path):
-    mould = generate_mould(7, 3, box=TINY.box)
-    D.write_dxf(mould, tmp_path / "m.dxf", l0_um=20.0)
+    mould = generate_mould(7, 3, TINY)
+    write_dxf(mould, tmp_path / "m.dxf", l0_um=20.0)
     doc = ezdxf.readfile(tmp_path / "m.dxf")
     assert doc.units == 4  # mm
     circles = doc.modelspace().query("CIRCLE")
     assert sorted(c.dxf.radius for c in circles) == pytest.approx(
         sorted(mould.tethers[:, 2] * 0.02))
     assert len(doc.modelspace().query("DIMENSION")) == 2
-    D.write_dxf(mould, tmp_path / "l0.dxf")
+    write_dxf(mould, tmp_path / "l0.dxf")
     doc = ezdxf.readfile(tmp_path / "l0.dxf")
-    assert doc.units == 0 and doc.header.custom_vars.get(D.DXF_UNITS_PROPERTY) == "l0"
+    assert doc.units == 0 and doc.header.custom_vars.get(DXF_UNITS_PROPERTY) == "l0"
 
 
 def test_placed_user_moulds_build_a_lattice(tmp_path):
@@ -497,7 +502,7 @@ def test_placed_user_moulds_build_a_lattice(tmp_path):
         '<rect x="0" y="0" width="3" height="3"/><circle cx="1.5" cy="1.5" r="0.6"/>',
         '<path d="M 0 0 L 6 0 L 6 1.2 L 1.2 1.2 L 1.2 6 L 0 6 Z"/>',
     ]):
-        mould = D.load_mould(_write(tmp_path / f"{k}.svg", SVG_HEAD + body + "</svg>"), TINY)
+        mould = load_mould(_write(tmp_path / f"{k}.svg", SVG_HEAD + body + "</svg>"), TINY)
         lattice = build_lattice(mould.polygon, mould.tethers, TINY.depth)
         assert (~lattice.fixed).any()
         assert mould.polygon.contains(Point(TINY.box / 2, TINY.box / 2)) or k == 2
@@ -519,7 +524,7 @@ def test_dxf_blocks_are_expanded_and_hidden_layers_ignored(tmp_path):
     msp.add_blockref("POST", (0.05, 0.05))
     msp.add_blockref("POST", (0.15, 0.05))
     doc.saveas(tmp_path / "cad.dxf")
-    mould = D.load_mould(tmp_path / "cad.dxf", TINY, l0_um=20.0)  # 10 x 5 l0, r = 0.5 l0
+    mould = load_mould(tmp_path / "cad.dxf", TINY, l0_um=20.0)  # 10 x 5 l0, r = 0.5 l0
     assert mould.polygon.area == pytest.approx(50.0, rel=1e-9)
     np.testing.assert_allclose(np.sort(mould.tethers[:, 0]) - mould.polygon.bounds[0],
                                [2.5, 7.5], atol=1e-9)
@@ -543,11 +548,11 @@ def test_an_inkscape_style_svg(tmp_path):
     <text x="0" y="55"><tspan>note</tspan></text>
   </g>
 </svg>"""
-    mould = D.load_mould(_write(tmp_path / "ink.svg", svg), TINY, l0_um=4000.0)  # 4 mm = 1 l0
+    mould = load_mould(_write(tmp_path / "ink.svg", svg), TINY, l0_um=4000.0)  # 4 mm = 1 l0
     xmin, ymin, xmax, ymax = mould.polygon.bounds
     assert xmax - xmin == pytest.approx(12.5)  # 50 mm
     # the Bezier bottom edge dips 7.5 mm below the 40 mm sides
-    assert ymax - ymin == pytest.approx(47.5 / 4, abs=D.FLATTEN_TOLERANCE_L0)
+    assert ymax - ymin == pytest.approx(47.5 / 4, abs=FLATTEN_TOLERANCE_L0)
     assert sorted(mould.tethers[:, 0] - xmin) == pytest.approx([15 / 4, 35 / 4])
     np.testing.assert_allclose(mould.tethers[:, 1], ymax - 20 / 4)  # 20 mm below the top
     np.testing.assert_allclose(mould.tethers[:, 2], 0.5)
@@ -584,7 +589,7 @@ def test_an_8_8_mm_dogbone_is_refused_with_the_window_and_the_way_forward(tmp_pa
     path = _write(tmp_path / "bone.svg", DOGBONE_SVG)
     scale = 0.9 * 31.25 / (8800 / 16)  # 0.9 of the box over the drawn 550 l0
     with pytest.raises(InvalidMouldError) as caught:
-        D.load_mould(path, DEFAULT, l0_um=16)
+        load_mould(path, DEFAULT, l0_um=16)
     message = str(caught.value)
     assert "550 l0 = 8.8 mm wide" in message
     assert "window is 31.25 l0 = 0.5 mm square at l0 = 16 um" in message
@@ -596,7 +601,7 @@ def test_an_8_8_mm_dogbone_is_refused_with_the_window_and_the_way_forward(tmp_pa
 @pytest.mark.parametrize("fit", ["extent", "area"])
 def test_fit_keeps_the_aspect_ratio_and_returns_the_scale(tmp_path, fit):
     path = _write(tmp_path / "bone.svg", DOGBONE_SVG)
-    placed = D.load_placement(path, DEFAULT, l0_um=16, fit=fit)
+    placed = load_placement(path, DEFAULT, l0_um=16, fit=fit)
     # the area fit (0.4 of the box) would make it wider than the box: capped by the extent
     scale = 0.9 * 31.25 / 550
     assert placed.scale == pytest.approx(scale, rel=1e-6) and placed.fit == fit
@@ -618,9 +623,9 @@ def test_a_unitless_svg_is_read_as_css_px_and_says_so(tmp_path):
     """The dog-bone with its numbers in CSS px (96 an inch) and no units stated reads as the
     same geometry as the mm drawing, and the placement says how it was read."""
     text = _dogbone_svg(96 / 25.4, head="")
-    mm = D.load_placement(_write(tmp_path / "mm.svg", DOGBONE_SVG), DEFAULT, l0_um=16,
+    mm = load_placement(_write(tmp_path / "mm.svg", DOGBONE_SVG), DEFAULT, l0_um=16,
                           fit="extent")
-    css = D.load_placement(_write(tmp_path / "px.svg", text), DEFAULT, l0_um=16, fit="extent")
+    css = load_placement(_write(tmp_path / "px.svg", text), DEFAULT, l0_um=16, fit="extent")
     assert "CSS px" in css.reading and "96 px an inch" in css.reading
     assert css.drawn_l0 == pytest.approx(mm.drawn_l0, rel=1e-6)
     assert css.mould.polygon.area == pytest.approx(mm.mould.polygon.area, rel=1e-6)
@@ -634,7 +639,7 @@ def test_an_8_by_5_mm_dxf_fits_by_area_with_the_scale_computed_by_hand(tmp_path)
     for x, y in [(1.5, 1.2), (6.5, 1.2), (1.5, 3.8), (6.5, 3.8)]:
         msp.add_circle((x, y), 0.4)
     doc.saveas(tmp_path / "plate.dxf")
-    placed = D.load_placement(tmp_path / "plate.dxf", DEFAULT, l0_um=16, fit=True)
+    placed = load_placement(tmp_path / "plate.dxf", DEFAULT, l0_um=16, fit=True)
     side = 1000 / 16  # l0 per mm
     by_area = math.sqrt(0.4 * 31.25**2 / (40 * side**2))
     by_extent = 0.9 * 31.25 / (8 * side)

@@ -13,7 +13,8 @@ import pytest
 
 from condor.config import Config
 from condor.folder import FolderError, RunLock, check_folder, store_gaps, store_path
-from condor.data.store import create_store, sample_index, write_expected, write_inputs, write_sample
+from condor.data.store import (create_store, sample_index, write_expected, write_inputs,
+                               write_sample)
 
 BASE = {"scene": "tiny", "seed": 1, "n_moulds": 6, "split": {"test": 2},
         "simulation": {"replicas": {"test": 4}}}

@@ -10,20 +10,21 @@ from shapely.geometry import Point, box
 
 from condor.data import inputs
 from condor.model.lattice import build_lattice, lattice_sites
-from condor.data.moulds import Mould, generate_mould, input_channels
+from condor.moulds.mould import Mould, input_channels
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.surrogate.samples import DataError, model_inputs, usable_samples
 from condor.surrogate.physics import estimate_n_cells
 from condor.surrogate.predict import Predictor, run_model
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
-from condor.surrogate.models import UNetConfig
+from condor.surrogate.networks import UNetConfig
 
 SCENE = get_scene("default")
 
 
 def _mould(mould_id=4, seed=2026):
-    return generate_mould(seed, mould_id, box=SCENE.box)
+    return generate_mould(seed, mould_id, SCENE)
 
 
 def test_lattice_sites_are_build_lattices_cells():
@@ -118,7 +119,7 @@ def test_supersampled_masks_measure_coverage():
 def test_a_lattice_model_reads_the_lattice_variable(tmp_path, kind):
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
-    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs=kind,
+    cfg = TrainConfig(network="unet", head="physics", loss="gaussian", inputs=kind,
                       unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), epochs=1,
                       batch_size=4, lr=2e-3)
     path = tmp_path / "lat.pt"
@@ -138,7 +139,7 @@ def test_a_lattice_model_reads_the_lattice_variable(tmp_path, kind):
     with pytest.raises(DataError, match="no 'lattice' variable"):
         train(ds.drop_vars("lattice"), cfg, tmp_path / "none.pt", log=lambda _: None)
     with pytest.raises(ValueError, match="inputs 'pixels' is not one of"):
-        TrainConfig(model="unet", head="physics", loss="gaussian", inputs="pixels")
+        TrainConfig(network="unet", head="physics", loss="gaussian", inputs="pixels")
 
 
 # --- the stress channels: a contracting spring network (inputs.spring_stress) -------------
@@ -371,7 +372,7 @@ def test_stress_channels_solve_each_mould_once_and_check_shapes():
 def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channels):
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
-    cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs=kind,
+    cfg = TrainConfig(network="unet", head="physics", loss="gaussian", inputs=kind,
                       unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), epochs=1,
                       batch_size=4, lr=2e-3, augment=True, symmetrise=True)
     path = tmp_path / "mech.pt"
@@ -393,14 +394,14 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channel
     # the 8 planar transforms run as one batch ("eval" mode) give what 8 runs give
     import torch
 
-    from condor.surrogate.models import prediction_mode
-    from condor.surrogate.predict import _symmetrised
+    from condor.surrogate.networks import prediction_mode
+    from condor.surrogate.symmetrise import symmetrised, symmetrised_reference
 
     x = torch.from_numpy(np.ascontiguousarray(read, dtype=np.float32))
     cells = np.full(len(test), 100.0)
     with prediction_mode(predictor.model, "eval"), torch.no_grad():
-        apart = _symmetrised(predictor.model, predictor.scaling, x, cells, kind, batched=False)
-        together = _symmetrised(predictor.model, predictor.scaling, x, cells, kind, batched=True)
+        apart = symmetrised_reference(predictor.model, predictor.scaling, x, cells, kind)
+        together = symmetrised(predictor.model, predictor.scaling, x, cells, kind, batched=True)
     for a, b in zip(apart, together):
         np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-7)
 
@@ -419,7 +420,7 @@ def test_training_solves_each_split_once_whatever_the_epochs(tmp_path, monkeypat
     counts = []
     for epochs in (1, 3):
         calls.clear()
-        cfg = TrainConfig(model="unet", head="physics", loss="gaussian", inputs="mechanics",
+        cfg = TrainConfig(network="unet", head="physics", loss="gaussian", inputs="mechanics",
                           unet=UNetConfig.for_size(32, base=8, upsample="bilinear"),
                           epochs=epochs, batch_size=4, lr=2e-3)
         train(ds, cfg, tmp_path / f"e{epochs}.pt", log=lambda _: None)

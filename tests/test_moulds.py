@@ -1,4 +1,4 @@
-"""Tests for condor.data.moulds: statistics over many moulds, symmetry, contract, files, rasters."""
+"""Tests for condor.moulds.paper and the contract (condor.moulds.mould): statistics over many moulds, symmetry, contract, files, rasters."""
 
 from __future__ import annotations
 
@@ -13,10 +13,13 @@ import shapely
 from shapely import affinity
 from shapely.geometry import MultiPolygon, Polygon, box as shapely_box
 
-from condor.data import moulds as M
+from condor.model.scenes import get_scene
+from condor.moulds import mould as C
+from condor.moulds import paper as M
 from condor import plots
 
-BOX = 62.5
+PAPER = get_scene("paper")
+BOX = PAPER.box  # 62.5 l0
 N_MOULDS = 2000
 SEED = 20240607
 # Chi-square critical value, 4 degrees of freedom, p = 0.001 (statistical tables).
@@ -24,8 +27,8 @@ CHI2_4DOF_P001 = 18.467
 
 
 @pytest.fixture(scope="module")
-def moulds() -> list[M.Mould]:
-    return [M.generate_mould(SEED, i, box=BOX) for i in range(N_MOULDS)]
+def moulds() -> list[C.Mould]:
+    return [M.generate_mould(SEED, i, PAPER) for i in range(N_MOULDS)]
 
 
 def _tethered(moulds):
@@ -41,13 +44,13 @@ def _binomial_tolerance(p: float, n: int, sigmas: float = 4.0) -> float:
 
 def test_regime_shares_are_equal(moulds):
     counts = Counter(m.symmetry for m in moulds)
-    assert set(counts) == set(M.SYMMETRIES)
-    for symmetry in M.SYMMETRIES:
+    assert set(counts) == set(C.SYMMETRIES)
+    for symmetry in C.SYMMETRIES:
         assert abs(counts[symmetry] / N_MOULDS - 0.2) < 0.03, (symmetry, counts)
 
 
 def test_removal_frequencies_follow_the_table(moulds):
-    for symmetry in M.SYMMETRIES:
+    for symmetry in C.SYMMETRIES:
         removals = [m.removal for m in _tethered(moulds) if m.symmetry == symmetry]
         row = M.REMOVAL_FREQUENCIES[symmetry]
         total = sum(row.values())
@@ -63,7 +66,7 @@ def test_categorical_draws_match_the_table_closely():
     params = M.MouldParams()
     draws = [M._draw_choices(np.random.default_rng([7, i]), params) for i in range(60_000)]
     n = len(draws)
-    for symmetry in M.SYMMETRIES:
+    for symmetry in C.SYMMETRIES:
         chosen = [d for d in draws if d.symmetry == symmetry and not d.no_tethers]
         share = sum(d.symmetry == symmetry for d in draws) / n
         assert abs(share - 0.2) < _binomial_tolerance(0.2, n)
@@ -124,7 +127,7 @@ def test_every_mould_is_a_single_valid_polygon(moulds):
     for m in moulds:
         assert isinstance(m.polygon, Polygon)
         assert m.polygon.is_valid
-        M.validate_mould(m)
+        C.check_mould(m)
 
 
 def test_tethers_count_inside_and_apart(moulds):
@@ -205,7 +208,7 @@ def _raster_symmetric(polygon, origin, transform_xy, box, pixels=128) -> None:
     assert mask.sum() > 0.3 * pixels**2 * 0.4  # the mould is actually on the grid
 
 
-def _symmetries(m: M.Mould):
+def _symmetries(m: C.Mould):
     """Independent description of each regime's symmetry operations (point maps)."""
     o = np.asarray(m.origin)
     if m.symmetry == "single_mirror":
@@ -288,16 +291,16 @@ def test_random_rotation_copies_are_not_symmetric(moulds):
 
 
 def test_deterministic_and_ids_differ():
-    a = M.generate_mould(5, 11, box=BOX).to_dict()
-    b = M.generate_mould(5, 11, box=BOX).to_dict()
+    a = M.generate_mould(5, 11, PAPER).to_dict()
+    b = M.generate_mould(5, 11, PAPER).to_dict()
     assert a == b
-    assert M.generate_mould(5, 12, box=BOX).to_dict() != a
-    assert M.generate_mould(6, 11, box=BOX).to_dict() != a
+    assert M.generate_mould(5, 12, PAPER).to_dict() != a
+    assert M.generate_mould(6, 11, PAPER).to_dict() != a
 
 
 def test_box_only_scales_the_mould():
-    small = M.generate_mould(3, 4, box=1.0)
-    big = M.generate_mould(3, 4, box=31.25)
+    small = M.generate_mould(3, 4, replace(PAPER, box=1.0))
+    big = M.generate_mould(3, 4, replace(PAPER, box=31.25))
     assert small.symmetry == big.symmetry and small.removal == big.removal
     scaled = affinity.scale(small.polygon, 31.25, 31.25, origin=(0, 0))
     assert scaled.symmetric_difference(big.polygon).area < 1e-9 * big.polygon.area
@@ -310,21 +313,21 @@ def test_box_only_scales_the_mould():
 ])
 def test_bad_ids_raise(seed, mould_id, name):
     with pytest.raises(ValueError, match=name):
-        M.generate_mould(seed, mould_id)
+        M.generate_mould(seed, mould_id, PAPER)
 
 
 def test_numpy_integer_ids_are_accepted():
-    a = M.generate_mould(np.int64(2), np.uint32(3), box=BOX)
-    assert a.to_dict() == M.generate_mould(2, 3, box=BOX).to_dict()
+    a = M.generate_mould(np.int64(2), np.uint32(3), PAPER)
+    assert a.to_dict() == M.generate_mould(2, 3, PAPER).to_dict()
 
 
 def test_bad_arguments_raise():
     with pytest.raises(ValueError, match="box"):
-        M.generate_mould(0, 0, box=-1.0)
+        M.generate_mould(0, 0, replace(PAPER, box=-1.0))
     with pytest.raises(ValueError, match="area_fraction"):
-        M.generate_mould(0, 0, area_fraction=1.2)
+        M.generate_mould(0, 0, replace(PAPER, area_fraction=1.2))
     with pytest.raises(ValueError, match="max_extent"):
-        M.generate_mould(0, 0, max_extent=0.0)
+        M.generate_mould(0, 0, replace(PAPER, max_extent=0.0))
 
 
 @pytest.mark.parametrize("field, value", [
@@ -340,46 +343,46 @@ def test_params_validate_names_the_field(field, value):
 def test_exhausted_attempts_raise_runtime_error():
     params = M.MouldParams(no_tether_fraction=0.0, min_tethers=1000, max_attempts=3)
     with pytest.raises(RuntimeError, match="3 attempts"):
-        M.generate_mould(0, 0, params=params)
+        M.generate_mould(0, 0, PAPER, params=params)
 
 
 def test_no_tether_fraction_one_gives_tether_free_moulds():
     params = M.MouldParams(no_tether_fraction=1.0)
-    m = M.generate_mould(1, 1, params=params)
+    m = M.generate_mould(1, 1, PAPER, params=params)
     assert m.removal == M.NO_TETHERS and m.n_tethers == 0
     assert m.cell_region().equals(m.polygon)
-    M.validate_mould(m)
+    C.check_mould(m)
 
 
 # --------------------------------------------------------------------------- validation
 
 
-def _valid_mould() -> M.Mould:
-    return M.generate_mould(9, 0, box=BOX)
+def _valid_mould() -> C.Mould:
+    return M.generate_mould(9, 0, PAPER)
 
 
 def test_validate_rejects_bow_tie():
     m = _valid_mould()
     side = math.sqrt(0.4) * BOX
     bow = Polygon([(10, 10), (10 + side, 10 + side), (10 + side, 10), (10, 10 + side)])
-    with pytest.raises(M.InvalidMouldError, match="(?i)self-intersection|invalid"):
-        M.validate_mould(replace(m, polygon=bow, tethers=np.zeros((0, 3))))
+    with pytest.raises(C.InvalidMouldError, match="(?i)self-intersection|invalid"):
+        C.check_mould(replace(m, polygon=bow, tethers=np.zeros((0, 3))))
 
 
 def test_validate_rejects_tether_outside():
     m = _valid_mould()
     outside = np.vstack([m.tethers, [[0.5, 0.5, 0.3]]])  # the box corner is off the mould
     assert not m.polygon.contains(shapely.Point(0.5, 0.5))
-    with pytest.raises(M.InvalidMouldError, match="not fully inside"):
-        M.validate_mould(replace(m, tethers=outside))
+    with pytest.raises(C.InvalidMouldError, match="not fully inside"):
+        C.check_mould(replace(m, tethers=outside))
     # a tether whose centre is inside but whose disk crosses the wall
     boundary_point = np.asarray(m.polygon.exterior.coords[0])
     inner = m.polygon.centroid
     direction = np.asarray(inner.coords[0]) - boundary_point
     centre = boundary_point + 0.01 * direction / np.linalg.norm(direction) * 5
     crossing = np.array([[*centre, 1.0]])
-    with pytest.raises(M.InvalidMouldError, match="not fully inside"):
-        M.validate_mould(replace(m, tethers=crossing))
+    with pytest.raises(C.InvalidMouldError, match="not fully inside"):
+        C.check_mould(replace(m, tethers=crossing))
 
 
 def test_validate_rejects_other_faults():
@@ -395,8 +398,8 @@ def test_validate_rejects_other_faults():
         "leave": replace(m, polygon=affinity.translate(m.polygon, BOX)),
     }
     for message, broken in cases.items():
-        with pytest.raises(M.InvalidMouldError, match=message):
-            M.validate_mould(broken)
+        with pytest.raises(C.InvalidMouldError, match=message):
+            C.check_mould(broken)
 
 
 # --------------------------------------------------------------------------- files
@@ -406,12 +409,12 @@ def test_dict_and_json_round_trip(tmp_path, moulds):
     for m in moulds[:40]:
         d = m.to_dict()
         assert json.loads(json.dumps(d)) == d  # JSON-safe
-        again = M.Mould.from_dict(d)
+        again = C.Mould.from_dict(d)
         assert again.to_dict() == d
         assert again.polygon.equals_exact(m.polygon, 0.0)
         path = tmp_path / f"m{m.mould_id}.json"
-        M.save_json(m, path)
-        loaded = M.load_json(path)
+        C.save_json(m, path)
+        loaded = C.load_json(path)
         assert loaded.to_dict() == d
         np.testing.assert_array_equal(loaded.tethers, m.tethers)
 
@@ -422,12 +425,12 @@ def test_load_json_names_the_file(tmp_path):
     d["tethers"].append([0.5, 0.5, 0.3])
     path = tmp_path / "broken.json"
     path.write_text(json.dumps(d))
-    with pytest.raises(M.InvalidMouldError, match="broken.json"):
-        M.load_json(path)
+    with pytest.raises(C.InvalidMouldError, match="broken.json"):
+        C.load_json(path)
     garbage = tmp_path / "garbage.json"
     garbage.write_text("{not json")
-    with pytest.raises(M.InvalidMouldError, match="garbage.json"):
-        M.load_json(garbage)
+    with pytest.raises(C.InvalidMouldError, match="garbage.json"):
+        C.load_json(garbage)
 
 
 # --------------------------------------------------------------------------- rasters
@@ -437,7 +440,7 @@ def test_load_json_names_the_file(tmp_path):
 def test_input_channels(moulds, pixels):
     ps = BOX / pixels
     for m in _tethered(moulds)[:10]:
-        channels = M.input_channels(m, pixels)
+        channels = C.input_channels(m, pixels)
         assert channels.dtype == np.uint8 and channels.shape == (2, pixels, pixels)
         mould, tether = channels.astype(bool)
         assert not (mould & tether).any()
@@ -460,14 +463,14 @@ def test_input_channels_orientation():
     ps = BOX / 8
     tether = np.array([[6.5 * ps, 1.5 * ps, 0.4 * ps]])  # covers pixel (iy=1, ix=6) only
     low = replace(m, polygon=shapely_box(0, 0, BOX, BOX / 2), tethers=tether)
-    channels = M.input_channels(low, 8)
+    channels = C.input_channels(low, 8)
     assert channels[0, :4].sum() == 4 * 8 - 1 and channels[0, 4:].sum() == 0
     assert channels[1].sum() == 1 and channels[1, 1, 6] == 1
 
 
 def test_input_channels_bad_pixels():
     with pytest.raises(ValueError, match="pixels"):
-        M.input_channels(_valid_mould(), 0)
+        C.input_channels(_valid_mould(), 0)
 
 
 # --------------------------------------------------------------------------- figures, tables
@@ -475,10 +478,10 @@ def test_input_channels_bad_pixels():
 
 def test_regime_table(moulds):
     table = M.regime_table(moulds)
-    assert list(table.index) == list(M.SYMMETRIES)
+    assert list(table.index) == list(C.SYMMETRIES)
     assert table["n"].sum() == len(moulds)
     assert np.isclose(table["share"].sum(), 1.0)
-    for symmetry in M.SYMMETRIES:
+    for symmetry in C.SYMMETRIES:
         row = table.loc[symmetry]
         assert np.isclose(sum(row[r] for r in M.REMOVALS), 1.0)
         assert row["circular_paper"] == pytest.approx(
@@ -508,20 +511,20 @@ def test_a_hand_made_mould_needs_only_box_polygon_and_tethers(tmp_path):
     tethers = [[20, 20, 1.5], [30, 30, 2.0]]
     path = tmp_path / "hand.json"
     path.write_text(json.dumps(_user_dict(square, tethers)))
-    m = M.load_json(path)
-    assert not m.is_generated and m.symmetry == M.USER and m.removal == M.USER
+    m = C.load_json(path)
+    assert not m.is_generated and m.symmetry == C.USER and m.removal == C.USER
     assert m.seed is None and m.origin is None and m.unpruned_tethers is None
     assert m.area_fraction is None and m.order == 1 and m.mould_id == 0
     assert m.polygon.area / BOX**2 == pytest.approx(0.262144)
     # exact round trip of a user mould too
     d = m.to_dict()
     assert json.loads(json.dumps(d)) == d
-    assert M.Mould.from_dict(d).to_dict() == d
+    assert C.Mould.from_dict(d).to_dict() == d
 
 
 def test_generated_mould_json_is_unchanged():
     """Every key a generated mould wrote before is written the same way (no nulls)."""
-    d = M.generate_mould(4, 2, box=BOX).to_dict()
+    d = M.generate_mould(4, 2, PAPER).to_dict()
     assert set(d) == {"mould_id", "seed", "symmetry", "order", "removal", "box", "polygon",
                       "tethers", "origin", "unpruned_tethers", "area_fraction",
                       "convex_rounded", "concave_rounded", "outline"}
@@ -533,22 +536,22 @@ def test_generated_moulds_keep_the_exact_area_rule_with_a_hint():
     m = _valid_mould()
     d = m.to_dict()
     d["polygon"] = shapely.geometry.mapping(affinity.scale(m.polygon, 0.9, 0.9))
-    with pytest.raises(M.InvalidMouldError, match="area fraction .* is not 0.4 .*leaves out"):
-        M.validate_mould(M.Mould.from_dict(d))
+    with pytest.raises(C.InvalidMouldError, match="area fraction .* is not 0.4 .*leaves out"):
+        C.check_mould(C.Mould.from_dict(d))
     # the same geometry as a user mould (no symmetry, no area_fraction) is accepted
-    user = M.Mould.from_dict({k: d[k] for k in ("box", "polygon", "tethers")})
-    M.validate_mould(user)
+    user = C.Mould.from_dict({k: d[k] for k in ("box", "polygon", "tethers")})
+    C.check_mould(user)
     # a user mould that states an area fraction must state the true one
-    with pytest.raises(M.InvalidMouldError, match="area_fraction is the generator's target"):
-        M.validate_mould(replace(user, area_fraction=0.4))
+    with pytest.raises(C.InvalidMouldError, match="area_fraction is the generator's target"):
+        C.check_mould(replace(user, area_fraction=0.4))
 
 
 def test_from_dict_names_missing_and_unknown_fields():
     square = shapely_box(10, 10, 30, 30)
-    with pytest.raises(M.InvalidMouldError, match=r"missing mould field\(s\) \['tethers'\]"):
-        M.Mould.from_dict({"box": BOX, "polygon": shapely.geometry.mapping(square)})
-    with pytest.raises(M.InvalidMouldError, match="unknown mould field.*'tether'"):
-        M.Mould.from_dict({**_user_dict(square, []), "tether": []})
+    with pytest.raises(C.InvalidMouldError, match=r"missing mould field\(s\) \['tethers'\]"):
+        C.Mould.from_dict({"box": BOX, "polygon": shapely.geometry.mapping(square)})
+    with pytest.raises(C.InvalidMouldError, match="unknown mould field.*'tether'"):
+        C.Mould.from_dict({**_user_dict(square, []), "tether": []})
 
 
 @pytest.mark.parametrize("polygon, tethers, message", [
@@ -564,14 +567,14 @@ def test_from_dict_names_missing_and_unknown_fields():
     (shapely_box(-1, 10, 30, 30), [], "leave the box"),
 ])
 def test_user_moulds_are_refused_by_geometry(polygon, tethers, message):
-    m = M.Mould.from_dict(_user_dict(polygon, tethers))
-    with pytest.raises(M.InvalidMouldError, match=message):
-        M.validate_mould(m)
+    m = C.Mould.from_dict(_user_dict(polygon, tethers))
+    with pytest.raises(C.InvalidMouldError, match=message):
+        C.check_mould(m)
 
 
 def test_accepted_user_moulds_always_hold_mobile_cells():
     """Brute force against condor.model.lattice: rotated strips near the one-cell limit, half of
-    them with a post of random size; every mould validate_mould accepts builds a lattice
+    them with a post of random size; every mould check_mould accepts builds a lattice
     with mobile cells (the check is conservative: it refuses some that would too)."""
     from condor.model.lattice import build_lattice
 
@@ -583,10 +586,10 @@ def test_accepted_user_moulds_always_hold_mobile_cells():
         polygon = affinity.rotate(shapely_box(x0, y0, x0 + w, y0 + h), rng.uniform(0, 90))
         cx, cy = polygon.centroid.coords[0]
         tethers = [[cx, cy, rng.uniform(0.05, 0.5 * min(w, h))]] if rng.random() < 0.5 else []
-        m = M.Mould.from_dict(_user_dict(polygon, tethers))
+        m = C.Mould.from_dict(_user_dict(polygon, tethers))
         try:
-            M.validate_mould(m)
-        except M.InvalidMouldError:
+            C.check_mould(m)
+        except C.InvalidMouldError:
             refused += 1
             continue
         accepted += 1
@@ -599,7 +602,7 @@ def test_is_tether_free_is_the_generators_own_choice():
     """The config sizes replicas from is_tether_free before any mould exists: it must agree
     with the generated moulds (a high fraction makes both kinds common)."""
     params = M.MouldParams(no_tether_fraction=0.4)
-    answers = [(M.is_tether_free(7, i, params), M.generate_mould(7, i, params=params).n_tethers == 0)
+    answers = [(M.is_tether_free(7, i, params), M.generate_mould(7, i, PAPER, params=params).n_tethers == 0)
                for i in range(40)]
     assert all(a == b for a, b in answers)
     assert 5 < sum(a for a, _ in answers) < 35

@@ -4,6 +4,7 @@ its plain-words verdicts, and that it renders in headless Chromium."""
 import base64
 import html
 import html.parser
+import os
 import re
 
 import numpy as np
@@ -11,7 +12,10 @@ import shapely
 import pandas as pd
 import pytest
 
-from condor import plots, report
+from condor import plots
+from condor.report import kit, verdicts
+from condor.report import page as report_page
+from condor.report import screenshot as shots
 from condor.config import Config
 from condor.data.store import StoreSpec, create_store, write_inputs, write_sample
 
@@ -52,7 +56,7 @@ def parse(text):
 
 def test_figure_embeds_the_exact_png_bytes(tmp_path):
     path = png(tmp_path / "a.png")
-    block = report.figure(path, "a caption <with> markup")
+    block = kit.figure(path, "a caption <with> markup")
     src = parse(block).images[0]
     assert src.startswith("data:image/png;base64,")
     assert base64.b64decode(src.split(",", 1)[1]) == path.read_bytes()
@@ -62,32 +66,32 @@ def test_figure_embeds_the_exact_png_bytes(tmp_path):
 def test_table_matches_the_csv(tmp_path):
     df = pd.DataFrame({"method": ["a", "b", "c"], "x": [1.234567, np.nan, 3e-7], "n": [1, 2, 3]})
     df.to_csv(tmp_path / "t.csv", index=False)
-    block = report.table(tmp_path / "t.csv", "cap", digits=3)
+    block = kit.table(tmp_path / "t.csv", "cap", digits=3)
     rows = re.findall(r"<tr>(.*?)</tr>", block)
     assert len(rows) == 1 + 3  # header + rows
     cells = [re.findall(r"<td>(.*?)</td>", r) for r in rows[1:]]
     assert cells[0] == ["a", "1.23", "1"] and cells[1][1] == "" and cells[2][1] == "3e-07"
-    shortened = report.table(df, "cap", max_rows=2)
+    shortened = kit.table(df, "cap", max_rows=2)
     assert len(re.findall(r"<tr>", shortened)) == 3 and "1 more rows" in shortened
-    with pytest.raises(report.ReportError, match="nope"):
-        report.table(df, "cap", columns=["method", "nope"])
+    with pytest.raises(kit.ReportError, match="nope"):
+        kit.table(df, "cap", columns=["method", "nope"])
 
 
 def test_missing_inputs_and_empty_sections_are_errors(tmp_path):
-    with pytest.raises(report.ReportError, match="missing.png"):
-        report.figure(tmp_path / "missing.png", "x")
+    with pytest.raises(kit.ReportError, match="missing.png"):
+        kit.figure(tmp_path / "missing.png", "x")
     (tmp_path / "empty.csv").write_text("")
-    with pytest.raises(report.ReportError, match="empty.csv"):
-        report.table(tmp_path / "empty.csv", "x")
-    with pytest.raises(report.ReportError, match="Nothing here"):
-        report.render("t", [report.Section("a", "A", [report.paragraph("x")]),
-                            report.Section("b", "Nothing here", [])])
+    with pytest.raises(kit.ReportError, match="empty.csv"):
+        kit.table(tmp_path / "empty.csv", "x")
+    with pytest.raises(kit.ReportError, match="Nothing here"):
+        kit.render("t", [kit.Section("a", "A", [kit.paragraph("x")]),
+                            kit.Section("b", "Nothing here", [])])
 
 
 def test_render_links_every_section_from_the_contents():
-    sections = [report.Section(f"s{k}", f"Section {k}", [report.paragraph(f"text {k}")])
+    sections = [kit.Section(f"s{k}", f"Section {k}", [kit.paragraph(f"text {k}")])
                 for k in range(4)]
-    page = report.render("Title", sections, "meta")
+    page = kit.render("Title", sections, "meta")
     p = parse(page)
     assert p.anchors == [f"#s{k}" for k in range(4)]
     assert set(p.ids) == {f"s{k}" for k in range(4)}
@@ -191,13 +195,13 @@ def fake_inputs(tmp_path):
               "design_table": d / "designs.csv", "design_summary": d / "dsummary.csv",
               "design_confirmation": d / "dconf.png", "design_history": d / "dhist.png",
               "design_figure": d / "dfig.png"}
-    assert set(inputs) == set(report.REPORT_INPUTS)
+    assert set(inputs) == set(report_page.REPORT_INPUTS)
     return inputs, store
 
 
 def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     inputs, store = fake_inputs(tmp_path)
-    out = report.condor_report(CONFIG, inputs, store, tmp_path / "out" / "report.html")
+    out = report_page.condor_report(CONFIG, inputs, store, tmp_path / "out" / "report.html")
     page = out.read_text()
     p = parse(page)
     assert p.anchors == ["#summary", "#accuracy", "#simulator", "#surrogate", "#design", "#dataset"]
@@ -240,10 +244,10 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert "experiments/surrogate at " in page and "experiments/anneal_ladder at " in page
     # A missing evaluation figure is an error, not a placeholder.
     (tmp_path / "evaluation" / "unet" / "figures" / "unet_eval_statistics.png").unlink()
-    with pytest.raises(report.ReportError, match="figures"):
-        report.condor_report(CONFIG, inputs, store, tmp_path / "again.html")
-    with pytest.raises(report.ReportError, match="ladder"):
-        report.condor_report(CONFIG, {k: v for k, v in inputs.items() if k != "ladder"}, store,
+    with pytest.raises(kit.ReportError, match="figures"):
+        report_page.condor_report(CONFIG, inputs, store, tmp_path / "again.html")
+    with pytest.raises(kit.ReportError, match="ladder"):
+        report_page.condor_report(CONFIG, {k: v for k, v in inputs.items() if k != "ladder"}, store,
                              tmp_path / "again.html")
 
 
@@ -253,20 +257,20 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     ((0.10, 0.08, 0.12), "as close to the average organisation as one simulation"),
 ])
 def test_accuracy_verdict_follows_the_intervals(surrogate, words):
-    text = report.accuracy_verdict(accuracy_table(surrogate))
+    text = verdicts.accuracy_verdict(accuracy_table(surrogate))
     assert words in text
     assert "anneal 10" in text and "anneal 1000" not in text.split("Unconverged")[1]
 
 
 def test_statistics_verdict_names_biases_and_small_samples():
-    assert "not informative" in report.statistics_verdict(statistics_table(n=2), "unet")
-    text = report.statistics_verdict(statistics_table(bias=0.05), "unet")
+    assert "not informative" in verdicts.statistics_verdict(statistics_table(n=2), "unet")
+    text = verdicts.statistics_verdict(statistics_table(bias=0.05), "unet")
     assert "mean P" in text and "more than 1%" in text
-    assert "no statistic is biased" in report.statistics_verdict(statistics_table(), "unet")
-    low = report.statistics_verdict(statistics_table(r=0.9), "unet")
+    assert "no statistic is biased" in verdicts.statistics_verdict(statistics_table(), "unet")
+    low = verdicts.statistics_verdict(statistics_table(r=0.9), "unet")
     assert "The r is below both" in low and "more training moulds" not in low
     # a short orientation r points to the training-set study
-    orientation = report.statistics_verdict(statistics_table(r=0.9, stats=("mean_Sy2",)), "unet")
+    orientation = verdicts.statistics_verdict(statistics_table(r=0.9, stats=("mean_Sy2",)), "unet")
     assert "The r is below both 0.98 and its ceiling - 0.01 on mean Sy2" in orientation
     assert "more training moulds" in orientation
 
@@ -281,17 +285,17 @@ def fidelity_table(relaxed=(0.04, 0.0, 0.08), quench=(0.23, 0.04, 0.37)):
 
 
 def test_fidelity_verdict_says_how_far_each_solver_is_from_the_paper():
-    text = report.fidelity_verdict(fidelity_table())
+    text = verdicts.fidelity_verdict(fidelity_table())
     assert text.startswith("Fidelity to the paper's CONDOR (anneal 1e6, 8 test moulds x 4 seeds)")
     assert ("the dataset's solver (relaxed_anneal) lands 0.04 [0, 0.08] from its expected "
             "fields (upper bound 0.36 x one simulation's scatter 0.220; not resolved from it) "
             "at 2,351 evaluations") in text
     assert "lbfgs lands 0.23 [0.04, 0.37]" in text and "1.68 x" in text
     assert "resolved from it) at 1,193" in text
-    assert "not resolved" in report.fidelity_verdict(fidelity_table()).split(";")[1]
-    far = report.fidelity_verdict(fidelity_table(relaxed=(0.2, 0.1, 0.3)))
+    assert "not resolved" in verdicts.fidelity_verdict(fidelity_table()).split(";")[1]
+    far = verdicts.fidelity_verdict(fidelity_table(relaxed=(0.2, 0.1, 0.3)))
     assert "upper bound 1.36 x" in far and "(relaxed_anneal) lands 0.2 [0.1, 0.3]" in far
-    assert "not measured" in report.fidelity_verdict(fidelity_table().iloc[:0])
+    assert "not measured" in verdicts.fidelity_verdict(fidelity_table().iloc[:0])
 
 
 @pytest.mark.parametrize("relaxed, state", [
@@ -303,17 +307,17 @@ def test_the_fidelity_verdict_has_three_states(relaxed, state):
     the solver "resolved from the paper's CONDOR": a distance whose interval reaches 0 is not
     resolved, nor shown to be the same."""
     table = fidelity_table(relaxed=relaxed)
-    assert report.fidelity_state(table.iloc[0]) == state
-    assert f"{state} it)" in report.fidelity_verdict(table).split(";")[1]
+    assert verdicts.fidelity_state(table.iloc[0]) == state
+    assert f"{state} it)" in verdicts.fidelity_verdict(table).split(";")[1]
 
 
 def test_ladder_verdict():
     table = pd.DataFrame({"rung": ["dataset solver", "anneal 1000 + relax", "anneal 1000 + relax"],
                           "budget": [np.nan, 1000.0, 1000.0], "distance_to_dataset": [0, 0.02, 0.3],
                           "spread": [0.1, 0.1, 0.1]})
-    assert "On 1 of 2 ladder moulds" in report.ladder_verdict(table)
+    assert "On 1 of 2 ladder moulds" in verdicts.ladder_verdict(table)
     table.loc[2, "distance_to_dataset"] = 0.01
-    assert "samples the same states" in report.ladder_verdict(table)
+    assert "samples the same states" in verdicts.ladder_verdict(table)
 
 
 def test_accuracy_chart_draws_every_method(tmp_path):
@@ -321,17 +325,19 @@ def test_accuracy_chart_draws_every_method(tmp_path):
     assert path.stat().st_size > 10_000
 
 
-@pytest.mark.skipif(report.find_chromium() is None, reason="no Chromium on PATH")
+@pytest.mark.skipif(shots.find_chromium() is None
+                    and not os.environ.get("CONDOR_REQUIRE_CHROMIUM"),
+                    reason="no Chromium on PATH (CI installs it and sets CONDOR_REQUIRE_CHROMIUM)")
 def test_report_renders_in_headless_chromium(tmp_path):
     inputs, store = fake_inputs(tmp_path)
-    out = report.condor_report(CONFIG, inputs, store, tmp_path / "r.html")
-    shot = report.screenshot(out, tmp_path / "r.png", width=1000, height=2500)
-    coverage = report.screenshot_coverage(shot)
+    out = report_page.condor_report(CONFIG, inputs, store, tmp_path / "r.html")
+    shot = shots.screenshot(out, tmp_path / "r.png", width=1000, height=2500)
+    coverage = shots.screenshot_coverage(shot)
     assert coverage["width"] == 1000 and coverage["height"] == 2500
     assert coverage["rows_with_ink"] > 0.3  # text and images drawn down the page
     blank = tmp_path / "blank.html"
     blank.write_text("<html><body></body></html>")
-    assert report.screenshot_coverage(report.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
+    assert shots.screenshot_coverage(shots.screenshot(blank, tmp_path / "b.png"))["ink_fraction"] == 0
 
 
 def test_learning_curves_draws_each_table_and_refuses_none(tmp_path):
@@ -394,33 +400,33 @@ def test_headline_and_verdict_say_how_far_the_surrogate_is_from_the_paper():
         "n_seeds": 1, "distance": 0.107, "distance_lo": 0.078, "distance_hi": 0.132,
         "replica_noise": 0.22, "evaluations_per_mould": np.nan}])], ignore_index=True)
     every = accuracy_table(surrogate=(0.1, 0.09, 0.11)).assign(n_moulds=24)
-    numbers, words = report.headline(every, statistics_table(n=24, bias=0.004),
+    numbers, words = verdicts.headline(every, statistics_table(n=24, bias=0.004),
                                      pd.DataFrame(columns=["method", "n_moulds"]), fidelity,
                                      "unet")
     answer = dict(zip(numbers["question"], numbers["answer"]))["Distance to the paper's CONDOR"]
     assert "the surrogate (unet) 0.107 [0.078, 0.132]" in answer
     assert "unet lies 0.107 from the paper's CONDOR, within one simulation's scatter" in words
     far = fidelity.assign(distance_hi=[0.08, 0.37, 0.3])
-    assert "beyond one simulation's scatter" in report.headline(
+    assert "beyond one simulation's scatter" in verdicts.headline(
         every, statistics_table(n=24, bias=0.004), pd.DataFrame(columns=["method", "n_moulds"]),
         far, "unet")[1]
-    text = report.fidelity_verdict(fidelity)
+    text = verdicts.fidelity_verdict(fidelity)
     assert "surrogate unet lands 0.107 [0.078, 0.132]" in text and "nan" not in text
 
 
 def test_dataset_line_names_the_tether_free_test_moulds_replicas():
     summary = pd.DataFrame({"mould": [0, 1, 1], "state": ["ok", "ok", "failed"]})
     plain = Config.default(simulation={"replicas": {"test": 8, "test_tether_free": None}})
-    plain = report._dataset_line(plain, summary)
+    plain = report_page._dataset_line(plain, summary)
     assert "test 8." in plain and "tether-free" not in plain and "1 failed" in plain
     config = Config.default(simulation={"replicas": {"test": 4, "test_tether_free": 20}})
-    assert "test 4 (tether-free test moulds 20)." in report._dataset_line(config, summary)
+    assert "test 4 (tether-free test moulds 20)." in report_page._dataset_line(config, summary)
 
 
 def test_headline_without_a_spread_map_or_a_reference_says_so():
     every = accuracy_table(surrogate=(0.2, 0.18, 0.22)).assign(n_moulds=24)
     stats = statistics_table(n=24, bias=-0.02)
-    numbers, words = report.headline(every, stats, pd.DataFrame(columns=["method", "n_moulds"]),
+    numbers, words = verdicts.headline(every, stats, pd.DataFrame(columns=["method", "n_moulds"]),
                                      fidelity_table().iloc[:0], "unet")
     assert list(numbers["question"]) == [
         "Error against the expected fields", "Time a mould", "Calibration of the spread map",
@@ -432,6 +438,6 @@ def test_headline_without_a_spread_map_or_a_reference_says_so():
     assert words.startswith("Verdict: unet lands farther from the expected organisation than "
                             "one simulation on all 24 test moulds")
     assert "not resolved" not in words and "paper's CONDOR" not in words
-    with pytest.raises(report.ReportError, match="no row"):
-        report.headline(every[every["method"] != "single simulation"], stats,
+    with pytest.raises(kit.ReportError, match="no row"):
+        verdicts.headline(every[every["method"] != "single simulation"], stats,
                         pd.DataFrame(), fidelity_table(), "unet")

@@ -9,30 +9,12 @@ import shapely
 import xarray as xr
 import zarr
 
-from condor.data.store import (
-    FIELD_NAMES,
-    FORMAT_VERSION,
-    MAX_TETHERS,
-    MAX_VERTICES,
-    StoreError,
-    StoreSpec,
-    assign_splits,
-    check_store,
-    check_metadata,
-    chunk_file,
-    create_store,
-    inputs_whole,
-    open_store,
-    outline_polygon,
-    restore_layout,
-    sample_index,
-    sample_layout,
-    scan_store,
-    set_aside,
-    write_expected,
-    write_inputs,
-    write_sample,
-)
+from condor.data.store import (FIELD_NAMES, FORMAT_VERSION, MAX_TETHERS, MAX_VERTICES, StoreError,
+                               StoreSpec, assign_splits, create_store, open_store, outline_polygon,
+                               sample_index, sample_layout, write_expected, write_inputs,
+                               write_sample)
+from condor.data.store_check import (check_store, check_metadata, chunk_file, inputs_whole,
+                                     restore_layout, scan_store, set_aside)
 
 PIXELS = 8
 MOULD_META = {"seed": 1, "symmetry": "cyclic", "order": 3, "removal": "none", "n_tethers": 6}
@@ -534,12 +516,14 @@ def test_a_generated_mould_with_holes_and_the_most_tethers_round_trips(tmp_path)
     """Generated moulds have holes (the union of copies encloses them) and may keep every
     tether the generator's limit allows: seed 1's mould 2890 has 6 holes, its mould 1603 the
     36 tethers of MouldParams.max_tethers."""
-    from condor.data.moulds import generate_mould
+    from condor.model.scenes import get_scene
+    from condor.moulds.paper import generate_mould
 
     path = tmp_path / "d.zarr"
     create_store(path, spec(n=2))
     masks, lattice = np.ones((2, PIXELS, PIXELS), "uint8"), np.zeros((2, PIXELS, PIXELS), np.float32)
-    moulds = [generate_mould(1, 2890), generate_mould(1, 1603)]
+    paper = get_scene("paper")
+    moulds = [generate_mould(1, 2890, paper), generate_mould(1, 1603, paper)]
     assert len(moulds[0].polygon.interiors) == 6 and moulds[1].n_tethers == MAX_TETHERS
     for k, made in enumerate(moulds):
         write_inputs(path, k, masks, {**MOULD_META, "n_tethers": made.n_tethers}, lattice=lattice,

@@ -10,7 +10,7 @@ from condor.data.fields import cell_fields
 from condor.surrogate.samples import (FIELD_NAMES, FLIP_Z, MIRROR_X, MIRROR_Y, N_SYMMETRIES,
                                    TRANSPOSE, FieldScaling, apply_symmetry, compute_scaling,
                                    usable_samples)
-from condor.surrogate.models import UNetConfig, UNetGenerator
+from condor.surrogate.networks import UNetConfig, UNetGenerator
 from condor.surrogate.predict import run_generator
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, augmentation_choices, train
@@ -111,7 +111,7 @@ def ds():
 
 def test_augmented_resume_is_bit_identical_and_augmentation_acts(ds, tmp_path):
     unet = UNetConfig.for_size(32, base=8)
-    cfg = TrainConfig(model="unet_l1", unet=unet, epochs=2, batch_size=4, lr=2e-3, augment=True)
+    cfg = TrainConfig(network="unet_l1", unet=unet, epochs=2, batch_size=4, lr=2e-3, augment=True)
     full = train(ds, cfg, tmp_path / "full.pt", log=QUIET)
 
     def killed(line):  # dies right after the first epoch's checkpoint

@@ -13,7 +13,7 @@ from condor.surrogate.checkpoint import save_checkpoint
 from condor.surrogate.samples import FIELD_NAMES, FieldScaling
 from condor.surrogate.evaluate import (best_worst, correlation_table, evaluate, mae_frame,
                                        pearson_r, statistics_frame)
-from condor.surrogate.models import UNetConfig, paper_generator
+from condor.surrogate.networks import UNetConfig, paper_generator
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
@@ -127,7 +127,7 @@ def test_paper_generator_on_small_scene_resamples(tmp_path):
 
 def test_evaluate_end_to_end(tmp_path):
     ds = synthetic_dataset(12, 32, splits=("train",) * 4 + ("val", "test"))
-    cfg = TrainConfig(model="unet_l1", unet=UNetConfig.for_size(32, base=8), epochs=2, seed=0)
+    cfg = TrainConfig(network="unet_l1", unet=UNetConfig.for_size(32, base=8), epochs=2, seed=0)
     train(ds, cfg, tmp_path / "m.pt", log=lambda s: None)
     result = evaluate(tmp_path / "m.pt", ds, out_dir=tmp_path / "eval", pixel_size=0.5,
                       statistics_fn=stand_in_statistics)

@@ -2,6 +2,8 @@
 symmetrised prediction, resumable training, the spread in predictions and their files, and the
 calibration measures."""
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 import torch
@@ -10,16 +12,19 @@ from shapely.geometry import Polygon, box
 
 from condor import cli, plots
 from condor.model.lattice import build_lattice
-from condor.data.moulds import generate_mould, save_json
+from condor.model.scenes import get_scene
+from condor.moulds.paper import generate_mould
+from condor.moulds.mould import save_json
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels, z_of)
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.samples import FIELD_NAMES, apply_symmetry, usable_samples
-from condor.surrogate.models import UNetConfig, UNetGenerator
+from condor.surrogate.networks import UNetConfig, UNetGenerator
 from condor.data.fields import mould_statistics
 from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,
                                       n_cells_of_mould)
-from condor.surrogate.predict import Predictor, predict, write_prediction
+from condor.surrogate.predict import Predictor, predict
+from condor.surrogate.prediction_zarr import write_prediction
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
 
@@ -174,9 +179,9 @@ def test_tension_floor_weighs_each_moulds_tension_error_by_its_own_tension():
         with pytest.raises(ValueError, match="tension_floor"):
             PhysicsHead(scale, tau, tension_floor=bad)
         with pytest.raises(ValueError, match="TrainConfig.tension_floor"):
-            TrainConfig(model="unet", head="physics", loss="gaussian", tension_floor=bad)
+            TrainConfig(network="unet", head="physics", loss="gaussian", tension_floor=bad)
     with pytest.raises(ValueError, match="needs head 'physics'"):
-        TrainConfig(model="unet", loss="mse", tension_floor=0.5)
+        TrainConfig(network="unet", loss="mse", tension_floor=0.5)
 
 
 @pytest.mark.parametrize("weights, match", [
@@ -187,7 +192,7 @@ def test_field_weights_are_checked(weights, match):
     with pytest.raises(ValueError, match=match):
         PhysicsHead(np.ones(8), 1.0, field_weights=weights)
     with pytest.raises(ValueError, match="TrainConfig.field_weights"):
-        TrainConfig(model="unet", head="physics", loss="gaussian", field_weights=weights)
+        TrainConfig(network="unet", head="physics", loss="gaussian", field_weights=weights)
 
 
 def test_area_threshold_is_the_statistics_threshold():
@@ -233,7 +238,7 @@ def test_area_term_adds_the_relative_soft_area_error():
     with pytest.raises(ValueError, match="area_threshold"):
         PhysicsHead(np.ones(8), 1.0, area_weight=1.0)
     with pytest.raises(ValueError, match="area_weight.*needs head 'physics'"):
-        TrainConfig(model="unet_l1", area_weight=1.0)
+        TrainConfig(network="unet_l1", area_weight=1.0)
 
 
 def test_cell_count_of_a_pixel_aligned_rectangle_is_exact():
@@ -268,7 +273,7 @@ def physics_ds():
     return ds
 
 
-PHYSICS = dict(model="unet", head="physics", loss="gaussian",
+PHYSICS = dict(network="unet", head="physics", loss="gaussian",
                unet=UNetConfig.for_size(32, base=8, upsample="bilinear"), batch_size=4,
                lr=2e-3, seed=2, augment=True)
 
@@ -292,7 +297,7 @@ def test_physics_training_resumes_bit_identically(physics_ds, tmp_path):
     assert [h["mse"] for h in resumed] == [h["mse"] for h in full]
     assert {"mse", "nll", "val_mae"} <= set(full[-1])
     with pytest.raises(CheckpointMismatchError, match="head: checkpoint 'physics' vs now 'tanh'"):
-        train(physics_ds, TrainConfig(model="unet", unet=PHYSICS["unet"], epochs=2, batch_size=4,
+        train(physics_ds, TrainConfig(network="unet", unet=PHYSICS["unet"], epochs=2, batch_size=4,
                                       lr=2e-3, seed=2, augment=True), tmp_path / "full.pt",
               log=QUIET)
 
@@ -375,7 +380,7 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
     plots.prediction_panels(inputs[0], single, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
     # a mould JSON through `condor predict`: N_c is its exact lattice count at the scene's depth
-    mould = generate_mould(3, 1, box=predictor.box)
+    mould = generate_mould(3, 1, replace(get_scene("tiny"), box=predictor.box))
     save_json(mould, tmp_path / "m.json")
     cli.main(["predict", str(tmp_path / "m.json"), "--checkpoint", str(path), "--out",
               str(tmp_path / "m.zarr")])
@@ -387,7 +392,7 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
 
 def test_old_tanh_checkpoints_still_predict_without_spread(physics_ds, tmp_path):
     path = tmp_path / "old.pt"
-    train(physics_ds, TrainConfig(model="unet_l1", unet=UNetConfig.for_size(32, base=8),
+    train(physics_ds, TrainConfig(network="unet_l1", unet=UNetConfig.for_size(32, base=8),
                                   epochs=1, batch_size=4), path, log=QUIET)
     state = load_checkpoint(path)
     for key in ("upsample", "output"):  # written before these settings existed
@@ -399,13 +404,13 @@ def test_old_tanh_checkpoints_still_predict_without_spread(physics_ds, tmp_path)
 
 def test_config_rejects_inconsistent_heads():
     with pytest.raises(ValueError, match="gaussian.*physics"):
-        TrainConfig(model="unet", loss="gaussian")
-    with pytest.raises(ValueError, match="needs model 'unet'"):
-        TrainConfig(model="unet_l1", head="physics", loss="gaussian")
+        TrainConfig(network="unet", loss="gaussian")
+    with pytest.raises(ValueError, match="needs network 'unet'"):
+        TrainConfig(network="unet_l1", head="physics", loss="gaussian")
     with pytest.raises(ValueError, match="sum_weight.*needs head 'physics'"):
-        TrainConfig(model="unet_l1", sum_weight=1.0)
+        TrainConfig(network="unet_l1", sum_weight=1.0)
     with pytest.raises(ValueError, match="sum_weight = -1"):
-        TrainConfig(model="unet", head="physics", loss="gaussian", sum_weight=-1.0)
+        TrainConfig(network="unet", head="physics", loss="gaussian", sum_weight=-1.0)
     with pytest.raises(ValueError, match="sum_weight must be finite"):
         PhysicsHead(np.ones(8), 1.0, sum_weight=float("nan"))
     with pytest.raises(ValueError, match="upsample 'cubic'"):

@@ -7,13 +7,16 @@ import numpy as np
 import pytest
 import torch
 
-from condor.data.moulds import MouldParams, input_channels
+from condor.moulds.paper import MouldParams
+from condor.moulds.mould import input_channels
 from condor.model.scenes import get_scene
-from condor.stages.dataset import make_mould
+from condor.stages.build import make_mould
 from condor.surrogate.checkpoint import save_checkpoint
-from condor.surrogate.models import TFBatchNorm2d, UNetGenerator, prediction_mode
+from condor.surrogate.networks import TFBatchNorm2d, UNetGenerator, prediction_mode
 from condor.surrogate.physics import PhysicsHead
-from condor.surrogate.predict import Predictor, _symmetrised, run_model
+from condor.surrogate.predict import Predictor, run_model
+from condor.surrogate import inference
+from condor.surrogate.symmetrise import symmetrised_reference
 from condor.surrogate.variants import preset, train_config
 
 SCENE = get_scene("tiny")
@@ -85,8 +88,8 @@ def test_the_fast_path_equals_the_model_s_own_symmetrisation(checkpoint, moulds)
     fields, spread = run_model(predictor.model, predictor.scaling, x, "eval", 16, "cpu", True,
                                extra["n_cells"], predictor.inputs_kind)
     with prediction_mode(predictor.model, "eval"), torch.no_grad():
-        expected = _symmetrised(predictor.model, predictor.scaling, torch.from_numpy(x),
-                                extra["n_cells"], predictor.inputs_kind, batched=False)
+        expected = symmetrised_reference(predictor.model, predictor.scaling, torch.from_numpy(x),
+                                         extra["n_cells"], predictor.inputs_kind)
     for got, want in zip((fields, spread), expected):
         np.testing.assert_allclose(got, want, rtol=1e-5, atol=1e-6 * np.abs(want).max())
     assert np.all(fields[:, 6:] == 0)  # SxSz, SySz: exactly zero, as before
@@ -144,31 +147,33 @@ def test_bfloat16_prediction_is_close_to_float32_and_precision_is_checked(checkp
 def test_auto_precision_takes_bfloat16_only_where_it_is_native(checkpoint, monkeypatch, native):
     """The default precision, "auto", is resolved when the Predictor is made: bfloat16 where
     this CPU has it natively, float32 elsewhere (where bfloat16 would be emulated, slower)."""
-    import importlib
-
-    predict_module = importlib.import_module("condor.surrogate.predict")  # the module, not
-    # condor.surrogate's function of that name
-
-    monkeypatch.setattr(predict_module, "bfloat16_is_native", lambda: native)
+    monkeypatch.setattr(inference, "bfloat16_is_native", lambda: native)
     assert Predictor(checkpoint, device="cpu").precision == ("bfloat16" if native else "float32")
     assert Predictor(checkpoint, device="cpu", precision="float32").precision == "float32"
 
 
-def test_the_fused_decode_equals_torch_s_moves_decode_and_sums(checkpoint, moulds, monkeypatch):
-    """predict.FUSED_DECODE (one compiled pass: physics.symmetrised_decode_kernel) against the
-    batched torch path it replaces, with a spread factor that is not 1 and moulds of
-    different N_c."""
-    import importlib
-
-    predict = importlib.import_module("condor.surrogate.predict")  # the package exports a function of this name
+def test_the_symmetrisation_equals_the_reference_in_every_mode(checkpoint, moulds):
+    """The product's symmetrisation (decoded where the network wrote each transform, summed
+    in one compiled pass: physics.symmetrised_sum_kernel) against the reference
+    (symmetrise.symmetrised_reference), with a spread factor that is not 1, moulds of
+    different N_c, and the 8 transforms run as one batch ("eval") or one at a time (the
+    modes whose output depends on the batch)."""
+    from condor.surrogate.symmetrise import symmetrised
 
     predictor = Predictor(checkpoint, device="cpu", precision="float32")
     predictor.scaling.spread_factor = np.linspace(0.7, 1.9, 8)
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
     extra = predictor.mould_arguments(moulds)
-    fused = predictor(masks, **extra)
-    monkeypatch.setattr(predict, "FUSED_DECODE", False)
-    plain = predictor(masks, **extra)
-    for a, b in ((fused.raw, plain.raw), (fused.spread, plain.spread)):
-        np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
+    from condor.data.inputs import stress_channels
+
+    x = torch.from_numpy(np.concatenate([masks.astype(np.float32), extra["lattice"],
+                                         stress_channels(masks)], axis=1))
+    with prediction_mode(predictor.model, "eval"), torch.no_grad():
+        want = symmetrised_reference(predictor.model, predictor.scaling, x, extra["n_cells"],
+                                     predictor.inputs_kind)
+        for batched in (True, False):
+            got = symmetrised(predictor.model, predictor.scaling, x, extra["n_cells"],
+                              predictor.inputs_kind, batched=batched)
+            for a, b in zip(got, want):
+                np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6 * np.abs(b).max())
     assert len(set(np.round(extra["n_cells"]))) > 1

@@ -9,7 +9,7 @@ from condor.surrogate.baselines import MaskedMeanBaseline
 from condor.surrogate.checkpoint import (CheckpointError, CheckpointMismatchError,
                                          CheckpointNotFoundError, load_checkpoint, save_checkpoint)
 from condor.surrogate.samples import FieldScaling, SampleSource, compute_scaling, usable_samples
-from condor.surrogate.models import UNetConfig
+from condor.surrogate.networks import UNetConfig
 from condor.surrogate.predict import predict
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig, train
@@ -70,7 +70,7 @@ def test_sample_source_lazy_equals_preloaded(ds):
 
 
 def test_training_reduces_loss_and_beats_masked_mean(ds, tmp_path):
-    cfg = TrainConfig(model="unet_l1", unet=UNetConfig.for_size(32, base=16), epochs=30,
+    cfg = TrainConfig(network="unet_l1", unet=UNetConfig.for_size(32, base=16), epochs=30,
                       batch_size=2, lr=2e-3, betas=(0.9, 0.999), seed=1)
     history = train(ds, cfg, tmp_path / "l1.pt", log=QUIET)
     assert history[-1]["l1"] < 0.25 * history[0]["l1"]
@@ -90,7 +90,7 @@ def _weights(path):
 
 
 def test_kill_and_resume_give_identical_weights(ds, tmp_path):
-    cfg = TrainConfig(model="unet_gan", unet=TINY_UNET, epochs=2, batch_size=2, lr=1e-3,
+    cfg = TrainConfig(network="unet_gan", unet=TINY_UNET, epochs=2, batch_size=2, lr=1e-3,
                       lam=100.0, seed=3)
     full = train(ds, cfg, tmp_path / "full.pt", log=QUIET)
 
@@ -125,7 +125,7 @@ def test_checkpoint_errors_name_file_and_mismatch(ds, tmp_path):
     with pytest.raises(CheckpointNotFoundError, match="nothing.pt"):
         predict(missing, np.zeros((2, 32, 32)))
     assert issubclass(CheckpointNotFoundError, FileNotFoundError)
-    cfg = TrainConfig(model="unet_l1", unet=TINY_UNET, epochs=1, seed=0)
+    cfg = TrainConfig(network="unet_l1", unet=TINY_UNET, epochs=1, seed=0)
     train(ds, cfg, path, log=QUIET)
     with pytest.raises(CheckpointMismatchError, match=r"model\.pt.*lr: checkpoint 0.0002 vs now 0.001"):
         train(ds, TrainConfig(**{**cfg.__dict__, "lr": 1e-3}), path, log=QUIET)
@@ -150,7 +150,7 @@ def test_changed_data_is_never_resumed(ds, tmp_path):
     other data: the checkpoint's fingerprint no longer matches (a stale model would be
     published otherwise)."""
     path = tmp_path / "m.pt"
-    cfg = TrainConfig(model="unet_l1", unet=TINY_UNET, epochs=1, seed=0)
+    cfg = TrainConfig(network="unet_l1", unet=TINY_UNET, epochs=1, seed=0)
     train(ds, cfg, path, log=QUIET)
     fingerprint = load_checkpoint(path)["data"]["fingerprint"]
     assert len(fingerprint) == 64

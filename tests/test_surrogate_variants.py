@@ -7,9 +7,10 @@ import pytest
 import torch
 
 from condor.config import Config, ConfigError
-from condor.stages.surrogate import evaluate, evaluate_baselines, summarise, train, working_checkpoint
+from condor.stages.surrogate import (evaluate_store_baselines, evaluate_variant, summarise,
+                                     train_variant, working_checkpoint)
 from condor.surrogate.checkpoint import load_checkpoint
-from condor.surrogate.models import UNetConfig
+from condor.surrogate.networks import UNetConfig
 from condor.surrogate.synthetic import synthetic_dataset
 from condor.surrogate.train import TrainConfig
 from condor.surrogate.variants import PRESETS, UNET_KEYS, resolve, train_config, workflow_variants
@@ -23,7 +24,7 @@ def test_train_config_maps_flat_settings():
     cfg = train_config({"model": "unet_gan", "base": 16, "depth": 3, "epochs": 7, "lr": 1e-3,
                         "lam": 50, "batch_size": None}, 64)
     assert cfg.unet == UNetConfig(size=64, base=16, depth=3, max_width=256)
-    assert (cfg.model, cfg.epochs, cfg.lr, cfg.lam, cfg.batch_size) == ("unet_gan", 7, 1e-3, 50, 1)
+    assert (cfg.network, cfg.epochs, cfg.lr, cfg.lam, cfg.batch_size) == ("unet_gan", 7, 1e-3, 50, 1)
     assert train_config({"model": "unet_l1"}, 32).unet == UNetConfig.for_size(32)
     assert train_config({"model": "pix2pix"}, 64).networks(64)[0] == UNetConfig.paper()
 
@@ -118,7 +119,7 @@ def test_betas_reach_the_optimiser(store, tmp_path):
     assert train_config({"model": "unet_l1"}, 32).betas == (0.5, 0.999)
     assert train_config({"model": "unet_l1", "betas": [0.9, 0.99]}, 32).betas == (0.9, 0.99)
     checkpoint = tmp_path / "b.pt"
-    train(store, {**SETTINGS, "epochs": 1, "betas": [0.9, 0.99]}, checkpoint, threads=1,
+    train_variant(store, {**SETTINGS, "epochs": 1, "betas": [0.9, 0.99]}, checkpoint, threads=1,
           log_line=lambda s: None)
     state = load_checkpoint(checkpoint)
     assert [tuple(g["betas"]) for g in state["opt_g"]["param_groups"]] == [(0.9, 0.99)]
@@ -138,22 +139,22 @@ def test_train_variant_publishes_and_resumes(store, tmp_path):
     final = tmp_path / "models" / "v.pt"
     final.parent.mkdir()
     lines = []
-    history = train(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log_line=lines.append)
+    history = train_variant(store, SETTINGS, final, tmp_path / "h.csv", threads=1, log_line=lines.append)
     assert len(history) == 2 and final.is_file() and working_checkpoint(final).is_file()
     assert pd.read_csv(tmp_path / "h.csv")["epoch"].tolist() == [1, 2]
     # A job killed after epoch 1 of 3 resumes: only epochs 2 and 3 run.
     cosine = {**SETTINGS, "epochs": 3, "lr_schedule": "cosine"}
     with pytest.raises(KeyboardInterrupt):
-        train(store, cosine, final, threads=1, log_line=_killed_after_epoch_1)
+        train_variant(store, cosine, final, threads=1, log_line=_killed_after_epoch_1)
     lines.clear()
-    train(store, cosine, final, threads=1, log_line=lines.append)
+    train_variant(store, cosine, final, threads=1, log_line=lines.append)
     assert lines[0].startswith("resuming") and [line.split()[1] for line in lines[1:]] == ["2/3", "3/3"]
     assert load_checkpoint(final)["epoch"] == 3
-    train(store, cosine, tmp_path / "straight.pt", threads=1, log_line=lambda s: None)
+    train_variant(store, cosine, tmp_path / "straight.pt", threads=1, log_line=lambda s: None)
     assert _same_weights(final, tmp_path / "straight.pt")
     # Other settings discard the working checkpoint and start over.
     lines.clear()
-    train(store, {**SETTINGS, "base": 4}, final, threads=1, log_line=lines.append)
+    train_variant(store, {**SETTINGS, "base": 4}, final, threads=1, log_line=lines.append)
     assert lines[0].startswith("training from scratch") and len(lines) == 3
     assert load_checkpoint(final)["generator_config"]["base"] == 4
 
@@ -169,14 +170,14 @@ def test_changed_epochs_train_from_scratch(store, tmp_path, before, after):
     schedule: the published model is the one a fresh run of the new settings gives."""
     settings = {**SETTINGS, "lr_schedule": "cosine"}
     final = tmp_path / "v.pt"
-    train(store, {**settings, "epochs": before}, final, threads=1, log_line=lambda s: None)
+    train_variant(store, {**settings, "epochs": before}, final, threads=1, log_line=lambda s: None)
     lines = []
-    train(store, {**settings, "epochs": after}, final, threads=1, log_line=lines.append)
+    train_variant(store, {**settings, "epochs": after}, final, threads=1, log_line=lines.append)
     assert lines[0].startswith("training from scratch") and f"epochs: checkpoint {before}" in lines[0]
     assert len(lines) == 1 + after
     state = load_checkpoint(final)
     assert state["epoch"] == after == state["config"]["epochs"] == len(state["history"])
-    train(store, {**settings, "epochs": after}, tmp_path / "fresh.pt", threads=1,
+    train_variant(store, {**settings, "epochs": after}, tmp_path / "fresh.pt", threads=1,
           log_line=lambda s: None)
     assert _same_weights(final, tmp_path / "fresh.pt")
 
@@ -188,7 +189,7 @@ def test_changed_data_train_from_scratch(tmp_path):
     path = tmp_path / "data.zarr"
     write_store(path, data)
     final = tmp_path / "models" / "v.pt"
-    train(store=path, settings=SETTINGS, checkpoint=final, threads=1, log_line=lambda s: None)
+    train_variant(store=path, settings=SETTINGS, checkpoint=final, threads=1, log_line=lambda s: None)
     before = load_checkpoint(final)
     train_sample = int(np.flatnonzero(data["split"].values == "train")[0])
     fields = data["fields"].values[train_sample] * 1.5  # the sample simulated again
@@ -196,11 +197,11 @@ def test_changed_data_train_from_scratch(tmp_path):
                                               "energy": 0.0, "max_force": 0.0, "solver": "synthetic",
                                               "solver_seconds": 0.0, "hardware": "test"}, "ok")
     lines = []
-    train(path, SETTINGS, final, threads=1, log_line=lines.append)
+    train_variant(path, SETTINGS, final, threads=1, log_line=lines.append)
     assert lines[0].startswith("training from scratch") and "training data changed" in lines[0]
     after = load_checkpoint(final)
     assert after["data"]["fingerprint"] != before["data"]["fingerprint"]
-    train(path, SETTINGS, tmp_path / "fresh.pt", threads=1, log_line=lambda s: None)
+    train_variant(path, SETTINGS, tmp_path / "fresh.pt", threads=1, log_line=lambda s: None)
     assert _same_weights(final, tmp_path / "fresh.pt")
     assert not all(torch.equal(after["generator"][k], before["generator"][k])
                    for k in before["generator"])
@@ -208,9 +209,9 @@ def test_changed_data_train_from_scratch(tmp_path):
 
 def test_workflow_evaluation_files_and_summary(store, tmp_path):
     checkpoint = tmp_path / "v.pt"
-    train(store, SETTINGS, checkpoint, threads=1, log_line=lambda s: None)
-    evaluate(store, checkpoint, tmp_path / "v", "v", modes=["eval", "train"])
-    evaluate_baselines(store, tmp_path / "baselines")
+    train_variant(store, SETTINGS, checkpoint, threads=1, log_line=lambda s: None)
+    evaluate_variant(store, checkpoint, tmp_path / "v", "v", modes=["eval", "train"])
+    evaluate_store_baselines(store, tmp_path / "baselines")
     assert {p.name for p in (tmp_path / "v").iterdir()} == {
         "summary.csv", "figures", "v_eval_mae.csv", "v_eval_correlations.csv", "v_train_mae.csv",
         "v_train_correlations.csv"}

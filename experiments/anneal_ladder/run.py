@@ -59,7 +59,7 @@ from condor.measures.estimators import (  # noqa: E402
 from condor.data.fields import FIELD_NAMES, cell_fields, normalise  # noqa: E402
 from condor.model.lattice import build_lattice, signed_volumes  # noqa: E402
 from condor.model.minimise import minimise  # noqa: E402
-from condor.data.moulds import generate_mould  # noqa: E402
+from condor.moulds.paper import generate_mould  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import SimResult, diagnose, simulate, simulate_lattice, warm_up  # noqa: E402
@@ -128,7 +128,7 @@ def run_one(scene, mould_id: int, method: Method, replica: int, ftol: float,
             max_iter: int) -> tuple[dict, np.ndarray]:
     """One replica of one method: (row, normalised fields (8, H, W) float32). ftol and
     max_iter: the FIRE that follows an anneal."""
-    mould = generate_mould(DATASET_SEED, mould_id, box=scene.box)
+    mould = generate_mould(DATASET_SEED, mould_id, scene)
     seed = replica_seed(DATASET_SEED, mould_id, replica)
     budget, window = method.budget, method.window
     row = {"scene": scene.name, "mould": mould_id, "method": method.name,
@@ -351,7 +351,7 @@ def trace(scene, mould_id: int, budget: float, segments: int, replica: int, ftol
 
     Each stretch is one anneal_kernel call with the amplitudes carried over and its own RNG
     stream: the same schedule and adaptation as `anneal`, not bit-identical to it."""
-    mould = generate_mould(DATASET_SEED, mould_id, box=scene.box)
+    mould = generate_mould(DATASET_SEED, mould_id, scene)
     lattice = build_lattice(mould.polygon, mould.tethers, scene.depth)
     seed = replica_seed(DATASET_SEED, mould_id, replica)
     pos = lattice.positions.copy()

@@ -16,7 +16,7 @@ group's counts, so that a group measures one count):
   hidden_tethers  a generated mould whose tethers become pins of radius HIDDEN_PIN pixels on
                   pixel corners (in the radius range, yet no pixel centre of the input grid)
   dogbone         a 2-post dog-bone drawn from scratch and placed as a user drawing
-                  (condor.data.drawings.place, fit "area"); kept: outside on area and tethers
+                  (condor.moulds.place.place_drawing, fit "area"); kept: outside on area and tethers
 
 Every mould is simulated `--replicas` times with the product's default solver
 (condor.model.simulate.DEFAULT_SOLVER, the config's budget) at the replica seeds of
@@ -65,15 +65,16 @@ from shapely import affinity  # noqa: E402
 from shapely.geometry import Point, box as shapely_box  # noqa: E402
 
 from condor.config import Config  # noqa: E402
-from condor.data.drawings import place  # noqa: E402
+from condor.moulds.place import place_drawing  # noqa: E402
 from condor.data.fields import normalise  # noqa: E402
-from condor.data.moulds import InvalidMouldError, generate_mould, input_channels  # noqa: E402
+from condor.moulds.mould import InvalidMouldError, input_channels  # noqa: E402
+from condor.moulds.paper import generate_mould  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.measures import estimators as est  # noqa: E402
 from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.model.scenes import get_scene, same_length  # noqa: E402
 from condor.model.simulate import SimResult, warm_up  # noqa: E402
-from condor.stages.dataset import rasterise_result, simulate_mould  # noqa: E402
+from condor.stages.build import rasterise_result, simulate_mould  # noqa: E402
 from condor.surrogate.answer import (SPREAD_STATISTICS, domain_table, mould_summary,  # noqa: E402
                                      statistics)
 from condor.surrogate.calibration import interval_coverage, tissue_pixels  # noqa: E402
@@ -87,7 +88,7 @@ OUTSIDE = {"inside": (), "area": ("area / box area",), "extent": ("larger side /
 STATISTICS = SPREAD_STATISTICS  # the statistics whose z and spread ratio are measured
 ID_STRIDE = 100_000  # mould ids of group k: n_moulds + k * ID_STRIDE + j
 MAX_CANDIDATES = 400  # draws per group before giving up on filling it
-AREA_DEVIATION = 0.35  # relative, within condor.data.drawings.AREA_REFUSE (predict refuses beyond)
+AREA_DEVIATION = 0.35  # relative, within condor.moulds.domain.AREA_REFUSE (predict refuses beyond)
 RADIUS_CANVAS = (0.09, 0.13)  # canvas widths (the training generator's: 0.02-0.065)
 HIDDEN_PIN = 0.6  # pixel sides: below the distance from a pixel corner to a centre (0.707)
 CACHE = Path.home() / ".cache" / "condor" / "out_of_domain"
@@ -109,7 +110,7 @@ def _dogbone(rng: np.random.Generator, scene):
     post = rng.uniform(0.15, 0.28)
     tethers = [[-c * distance / 2, -s * distance / 2, post],
                [c * distance / 2, s * distance / 2, post]]
-    return place(outline, tethers, scene, fit="area", source="dog-bone").mould
+    return place_drawing(outline, tethers, scene, fit="area", source="dog-bone").mould
 
 
 def _hidden(mould, scene):
@@ -118,23 +119,23 @@ def _hidden(mould, scene):
     tethers = np.array(mould.tethers, dtype=float)
     tethers[:, :2] = np.round(tethers[:, :2] / size) * size
     tethers[:, 2] = HIDDEN_PIN * size
-    return place(mould.polygon, tethers, scene, source="pins").mould
+    return place_drawing(mould.polygon, tethers, scene, source="pins").mould
 
 
 def draw_mould(kind: str, mould_id: int, config: Config, scene, index: int):
     """The candidate mould `mould_id` of group `kind` (index: its place among the group's
     candidates), or None when it cannot be drawn."""
     params = config.mould_params()
-    kwargs = dict(box=scene.box, area_fraction=scene.area_fraction, max_extent=scene.max_extent,
-                  params=params)
+    kwargs = dict(scene=scene, params=params)
     try:
         if kind == "dogbone":
             return _dogbone(np.random.default_rng([config.seed, mould_id]), scene)
         if kind == "area":
             sign = -1 if index % 2 == 0 else 1  # smaller, larger, smaller, ...
-            kwargs["area_fraction"] = scene.area_fraction * (1 + sign * AREA_DEVIATION)
+            kwargs["scene"] = replace(scene, area_fraction=scene.area_fraction
+                                      * (1 + sign * AREA_DEVIATION))
         elif kind == "extent":
-            kwargs["max_extent"] = 1.0
+            kwargs["scene"] = replace(scene, max_extent=1.0)
         elif kind == "tethers":
             kwargs["params"] = replace(params, min_tethers=1)
         elif kind == "tether_radius":

@@ -1,6 +1,6 @@
 """Do two solvers reach the same minimum? Cost, energy and expected fields over an ensemble.
 
-Each solver runs moulds 0..M-1 of dataset seed S (condor.data.moulds.generate_mould(S, i, scene box))
+Each solver runs moulds 0..M-1 of dataset seed S (condor.moulds.paper.generate_mould(S, i, scene))
 with R replicas each, seeded as the store seeds them (condor.data.seeds.replica_seed; replica 0 is
 the dataset's own sample). Per solver it prints: evaluation-equivalents (median, max;
 info["evaluations"]), CPU seconds, the largest residual force, and
@@ -35,11 +35,11 @@ import numpy as np
 from condor.config import Config
 from condor.measures import estimators
 from condor.data.fields import normalise
-from condor.data.moulds import generate_mould
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.data.seeds import replica_seed
 from condor.model.simulate import simulate
-from condor.stages.dataset import rasterise_result
+from condor.stages.build import rasterise_result
 
 
 def parse_solver(spec: str) -> tuple[str, float | None, float | None]:
@@ -67,7 +67,7 @@ def run_ensemble(spec: str, scene, dataset_seed: int, moulds: int, replicas: int
     table = {k: np.full((moulds, replicas), np.nan) for k in keys}
     fields = None
     for i in range(moulds):
-        mould = generate_mould(dataset_seed, i, box=scene.box)
+        mould = generate_mould(dataset_seed, i, scene)
         for slot, r in enumerate(range(first_replica, first_replica + replicas)):
             path = folder / f"{scene.name}_s{dataset_seed}_m{i:03d}_r{r}.npz"
             if not path.exists():

@@ -40,7 +40,7 @@ from condor.model.energy import DELTA, random_orientations
 from condor.model.lattice import build_lattice
 from condor.model.lbfgs import minimise_lbfgs
 from condor.model.minimise import minimise
-from condor.data.moulds import generate_mould
+from condor.moulds.paper import generate_mould
 from condor.model.scenes import get_scene
 from condor.data.seeds import replica_seed
 from condor.model.walls import SLIDE, hold_on_walls, place, project_state
@@ -212,7 +212,7 @@ def main() -> None:
     scene = get_scene(args.scene)
     rows = {v: [] for v in args.variants}
     for i in range(args.first_mould, args.first_mould + args.moulds):
-        mould = generate_mould(args.seed, i, box=scene.box)
+        mould = generate_mould(args.seed, i, scene)
         lattice = build_lattice(mould.polygon, mould.tethers, scene.depth)
         ref_files = sorted(args.reference.glob(f"{scene.name}_s{args.seed}_m{i:03d}_r*.npz"))
         ref = (np.mean([float(np.load(f)["energy_per_cell"]) for f in ref_files])

@@ -21,7 +21,7 @@ from condor.config import Config  # noqa: E402
 from condor import plots  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
-from condor.stages.dataset import make_mould  # noqa: E402
+from condor.stages.build import make_mould  # noqa: E402
 from condor.studies.convergence import convergence  # noqa: E402
 
 OUT = Path("results/benchmarks")

@@ -22,7 +22,7 @@ import pandas as pd  # noqa: E402
 from condor.data.fields import FIELD_NAMES, normalise  # noqa: E402
 from condor.surrogate.answer import SPREAD_STATISTICS, mould_summary, statistics  # noqa: E402
 from condor.surrogate.calibration import tissue_pixels  # noqa: E402
-from condor.data.moulds import input_channels  # noqa: E402
+from condor.moulds.mould import input_channels  # noqa: E402
 
 from run import OOD, test_moulds  # noqa: E402  (this folder's run.py)
 

@@ -47,8 +47,8 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from condor.config import Config  # noqa: E402
-from condor.data.moulds import Mould  # noqa: E402
-from condor.data.reader import mould_geometry, open_dataset  # noqa: E402
+from condor.moulds.mould import Mould  # noqa: E402
+from condor.data.dataset import mould_geometry, open_dataset  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.surrogate.answer import SPREAD_STATISTICS  # noqa: E402

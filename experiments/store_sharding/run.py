@@ -1,7 +1,7 @@
 """Does Zarr v3 sharding pay at the paper's scale? (issue 31, docs/scale.md "Store layout")
 
 Builds two synthetic stores of `--moulds` samples at `--pixels` px with the arrays, chunks,
-dtypes and codecs of condor's store (condor.data.store._expected_arrays, CODECS): one as condor
+dtypes and codecs of condor's store (condor.data.store.expected_arrays, CODECS): one as condor
 writes it today (one chunk file per sample and array), one with the same chunks packed into
 shards of `--shard` samples (one batch job's samples: the job stays the shard's only writer).
 Each is written a batch at a time, as the workflow's batch jobs do. Then, for each: the files
@@ -31,7 +31,7 @@ import numpy as np
 import xarray as xr
 import zarr
 
-from condor.data.store import CODECS, StoreSpec, _expected_arrays, quiet_zarr
+from condor.data.store import CODECS, StoreSpec, expected_arrays, quiet_zarr
 
 
 def synthetic(rng, n, pixels, fields):
@@ -111,7 +111,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     n = args.moulds
     spec = StoreSpec(n_moulds=n, pixels=args.pixels, seed=0, split=("train",) * n, attrs={})
-    arrays = _expected_arrays(spec)
+    arrays = expected_arrays(spec)
     pool = synthetic(np.random.default_rng(0), 16, args.pixels, arrays["fields"][0][1])
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []

@@ -21,7 +21,7 @@ import argparse
 import numpy as np
 import pandas as pd
 
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.measures.estimators import statistic_agreement
 from condor.data.fields import STATISTICS
 from condor.studies.scoring import predict_replica_moulds, statistics_of, study_dataset

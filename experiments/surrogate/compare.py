@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from condor.config import Config
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.surrogate.samples import usable_samples
 from condor.surrogate.predict import Predictor
 from condor.surrogate.train import TrainConfig, train
@@ -118,7 +118,7 @@ def main():
           f"({source}); torch {torch.__version__}, {args.threads} threads")
     work = Path(tempfile.mkdtemp(prefix="bench_compare_"))
 
-    paper_cfg = TrainConfig(model="pix2pix", epochs=args.paper_epochs, num_threads=args.threads,
+    paper_cfg = TrainConfig(network="pix2pix", epochs=args.paper_epochs, num_threads=args.threads,
                             val_every=10 ** 6)
     print(f"pix2pix (paper, 256 px): {args.paper_epochs} epoch(s)")
     paper_cpu, paper_wall, _ = train_timed(ds, paper_cfg, work / "paper.pt")

@@ -23,7 +23,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
-from condor.data.reader import open_dataset  # noqa: E402
+from condor.data.dataset import open_dataset  # noqa: E402
 from condor.surrogate.samples import FIELD_NAMES  # noqa: E402
 from condor.surrogate.predict import Predictor  # noqa: E402
 

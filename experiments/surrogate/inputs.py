@@ -10,7 +10,7 @@ fields of the replica moulds, paired against the first kind (docs/surrogate.md "
 
 KIND is mask | coverage | lattice | estimated | both (masks and lattice channels, 4 input
 channels). The network reads the store variables of its TrainConfig.inputs; coverage and estimated replace the store's `lattice` in memory by
-`condor.data.moulds.input_channels(mould, pixels, 8)` and `condor.data.inputs.estimate_lattice_channels`
+`condor.moulds.mould.input_channels(mould, pixels, 8)` and `condor.data.inputs.estimate_lattice_channels`
 of the masks, so every kind runs the same code. Each run writes DIR/KIND.pt and
 DIR/KIND_pred.npz (raw predictions of the replica moulds); `table` prints and writes
 DIR/inputs_paired.csv (field error ratios against the first kind, bench_surrogate_paired's
@@ -32,9 +32,9 @@ from study import (
 )
 
 from condor.data import inputs as model_inputs
-from condor.data.reader import open_dataset
-from condor.data.moulds import input_channels
-from condor.stages.dataset import load_moulds
+from condor.data.dataset import open_dataset
+from condor.moulds.mould import input_channels
+from condor.stages.build import load_moulds
 from condor.studies.scoring import (
     field_errors,
     paired_rows,

@@ -20,7 +20,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.studies.scoring import field_errors, paired_rows, predict_replica_moulds
 from condor.surrogate.samples import FIELD_NAMES
 

@@ -27,11 +27,11 @@ from pathlib import Path
 
 import numpy as np
 
-from condor.data.reader import open_dataset
-from condor.data.moulds import MouldParams
+from condor.data.dataset import open_dataset
+from condor.moulds.paper import MouldParams
 from condor.model.scenes import Scene
 from condor.data.seeds import replica_seed
-from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
+from condor.stages.build import make_mould, rasterise_result, simulate_mould
 from condor.data.store import replica_samples
 
 

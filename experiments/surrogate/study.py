@@ -29,7 +29,7 @@ import numpy as np
 import pandas as pd
 import torch
 
-from condor.data.reader import open_dataset
+from condor.data.dataset import open_dataset
 from condor.measures.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
                                root_mean, statistic_agreement)
 from condor.data.fields import STATISTICS

@@ -3,7 +3,7 @@
 The library is pure: it never imports Snakemake. docs/architecture.md shows the floors and
 what each module owns. For the dataset: `condor.open_dataset(path)`,
 `condor.torch_dataset(ds, split)` and `condor.score(predictions, ds)` (`condor.dataset`, the
-module condor.data.reader; condor.studies.accuracy).
+module condor.data.dataset; condor.studies.accuracy).
 """
 
 from condor.version import __version__
@@ -12,8 +12,8 @@ __all__ = ["__version__", "dataset", "open_dataset", "torch_dataset", "score"]
 
 
 # What `import condor` offers (loaded on first use, so that `import condor` stays light).
-_LAZY = {"open_dataset": "condor.data.reader", "torch_dataset": "condor.data.reader",
-         "score": "condor.studies.accuracy", "dataset": "condor.data.reader"}
+_LAZY = {"open_dataset": "condor.data.dataset", "torch_dataset": "condor.data.dataset",
+         "score": "condor.studies.accuracy", "dataset": "condor.data.dataset"}
 
 
 def __getattr__(name):

@@ -5,24 +5,24 @@ that exists is overwritten without --force."""
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
-from condor import plots
-from condor.data.drawings import load_placement, training_domain_check
-from condor.data.moulds import MouldParams, input_channels, save_json
-from condor.model.scenes import PRESETS, Scene, get_scene, same_length
-from condor.model.simulate import DEFAULT_SOLVER, SOLVERS, SimResult
-from condor.stages.dataset import make_mould, rasterise_result, simulate_mould
-from condor.data.store import FORMAT, check_metadata, scan_store, set_aside
+from condor.data.store import SPLITS
+from condor.model.scenes import PRESETS, get_scene
+from condor.model.simulate import DEFAULT_SOLVER, SOLVERS
+from condor.moulds.paper import MouldParams
+from condor.moulds.place import FIT_MODES
+from condor.moulds.read import load_placement
+from condor.moulds.units import UNITS
+from condor.surrogate.modes import AUTO_PRECISION, DEFAULT_PRECISION, PRECISIONS, PREDICTION_MODES
 
 
 class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
 
+
+# --- what an argument may be -------------------------------------------------------------------
 
 def _non_negative_int(text: str) -> int:
     try:
@@ -51,15 +51,6 @@ def _positive_float(text: str) -> float:
     return value
 
 
-def _scene_arg(parser: argparse.ArgumentParser, default="default") -> None:
-    parser.add_argument("--scene", default=default, choices=sorted(PRESETS),
-                        help="scene preset: box, depth, pixels (default: %(default)s)")
-
-
-def _force_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
-
-
 def _new_output(path, force: bool, what: str = "--out") -> Path:
     """`path` as an output: CLIError when it exists and --force is not given."""
     path = Path(path)
@@ -70,133 +61,13 @@ def _new_output(path, force: bool, what: str = "--out") -> Path:
     return path
 
 
-# --- dataset stages ----------------------------------------------------------------------------
-
-def cmd_mould(args) -> None:
-    scene = get_scene(args.scene)
-    params = MouldParams() if args.no_tether_fraction is None else \
-        MouldParams(no_tether_fraction=args.no_tether_fraction)
-    params.validate()
-    out = _new_output(args.out, args.force) if args.out else None
-    png = _new_output(args.png, args.force, "--png") if args.png else None
-    mould = make_mould(scene, args.seed, args.id, params)
-    if out:
-        save_json(mould, out)
-    if png:
-        plots.mould_picture(mould, png)
-    print(f"mould {mould.mould_id} (seed {mould.seed}): {mould.symmetry}, order {mould.order}, "
-          f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
-
-
-def _windows(l0_um: float = 16.0) -> str:
-    """Each scene's window (its square box) in mm at cell spacing `l0_um`."""
-    return ", ".join(f"{name} {scene.box * l0_um / 1000:.3g} mm"
-                     for name, scene in sorted(PRESETS.items(), key=lambda kv: kv[1].box))
-
-
-def _user_mould_args(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--l0-um", type=_positive_float, default=None,
-                        help="cell spacing l0 in micrometres, for a drawing in mm or um (and "
-                             "drawings written in mm too). A scene's window is its box in l0 "
-                             f"times l0: at --l0-um 16, {_windows(16.0)} square (a drawing "
-                             "larger than that needs --fit)")
-    parser.add_argument("--units", choices=["l0", "mm", "um"], default=None,
-                        help="units of a drawing that does not state its own (an SVG without "
-                             "them is read as CSS px, 96 px an inch)")
-    parser.add_argument("--fit", nargs="?", const="area", default=None,
-                        choices=["area", "extent"],
-                        help="scale the drawing, keeping its aspect ratio: --fit extent makes "
-                             "its larger side 0.9 of the window (the training moulds' largest); "
-                             "--fit (or --fit area) makes its area the training moulds' (40%% "
-                             "of the box), capped by the extent fit. The scale factor is "
-                             "printed and recorded. Default: keep the drawn size")
-
-
-def _load_mould(args, scene, path=None):
-    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.data.drawings),
-    with its placement (how its units were read, its scale factor) printed."""
-    return _load_placement(args, scene, path).mould
-
-
 def _load_placement(args, scene, path=None):
+    """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.moulds.read),
+    with its placement (how its units were read, its scale factor) printed."""
     path = args.mould if path is None else path
     placement = load_placement(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
     print(f"{path}: {placement.describe()}", flush=True)
     return placement
-
-
-def cmd_simulate(args) -> None:
-    scene = get_scene(args.scene)
-    out = _new_output(args.out, args.force)
-    placement = _load_placement(args, scene)
-    result = simulate_mould(placement.mould, scene, args.solver, args.budget, args.seed)
-    result.info["placement"] = placement.record()  # the scale factor, the units read
-    result.save(out)
-    print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
-          f"{result.energy_per_cell:.6g}, {result.seconds:.2f} s ({result.solver})")
-    if result.status != "ok":
-        sys.exit(1)
-
-
-def cmd_rasterise(args) -> None:
-    result = SimResult.load(args.simulation)
-    if result.status != "ok":
-        raise CLIError(f"{args.simulation} is a failed simulation ({result.status}); no fields")
-    recorded = result.info.get("scene", {}).get("name")
-    scene = get_scene(args.scene or recorded or "default")
-    out = Path(args.out)
-    if out.suffix not in (".npy", ".png"):
-        raise CLIError(f"--out must end in .npy or .png, got {out}")
-    _new_output(out, args.force)
-    fields = rasterise_result(result, scene)
-    if out.suffix == ".npy":
-        np.save(out, fields)
-    else:
-        plots.field_panels([(f"{result.n_cells} cells", None, fields)], out)
-    print(f"{out}: 8 fields at {scene.pixels} px (scene {scene.name!r}) from {result.n_cells} cells")
-
-
-def cmd_check_store(args) -> None:
-    problems = check_metadata(args.store)
-    check = scan_store(args.store, deep=args.deep)
-    table = check.samples
-    counts = table["state"].value_counts()
-    print(f"{args.store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items()))
-    for problem in problems:
-        print(f"  metadata: {problem}")
-    for state in ("missing", "pending", "failed", "corrupt"):
-        rows = table[table["state"] == state]
-        if len(rows):
-            shown = ", ".join(str(s) for s in rows["sample"].head(20))
-            more = f" (+{len(rows) - 20} more)" if len(rows) > 20 else ""
-            print(f"  {state}: {shown}{more}")
-            if state == "failed":
-                for reason, group in rows.groupby("status"):
-                    print(f"    {len(group)} x {reason}")
-    for damage in check.damage[:20]:
-        print(f"  damaged: {damage}")
-    if len(check.damage) > 20:
-        print(f"  damaged: +{len(check.damage) - 20} more chunks")
-    if not check.derived:
-        print("  expected fields (fields_mean, fields_std, n_replicas_ok): not written (the "
-              "workflow's dataset step derives them)")
-    moved = set_aside(args.store, check.damage) if args.deep else None
-    if moved:
-        print(f"  moved the damaged chunk files to {moved}")
-    if check.damage:
-        print("  the next `snakemake` run rebuilds the samples and arrays named above")
-    if problems or (table["state"] != "ok").any() or check.damage or not check.derived:
-        sys.exit(1)
-
-
-# --- surrogate stages ---------------------------------------------------------------------------
-
-# condor.surrogate's PREDICTION_MODES, spelled out so that the parser does not import torch
-# (tests/test_cli_surrogate.py checks they agree).
-PREDICTION_MODES = ("eval", "batch_stats", "train")
-# condor.surrogate.predict's precisions and default, spelled out for the same reason (checked
-# by the same test)
-AUTO_PRECISION, PRECISIONS, DEFAULT_PRECISION = "auto", ("float32", "bfloat16"), "auto"
 
 
 def _schema_default(section: str, key: str):
@@ -204,6 +75,54 @@ def _schema_default(section: str, key: str):
     from condor.config import load_schema
 
     return load_schema()["properties"][section]["properties"][key]["default"]
+
+
+# --- the commands: each turns its arguments into values and calls one stage ---------------------
+
+def cmd_mould(args) -> None:
+    from condor.stages.build import mould_files
+
+    params = MouldParams() if args.no_tether_fraction is None else \
+        MouldParams(no_tether_fraction=args.no_tether_fraction)
+    params.validate()
+    out = _new_output(args.out, args.force) if args.out else None
+    png = _new_output(args.png, args.force, "--png") if args.png else None
+    mould = mould_files(get_scene(args.scene), args.seed, args.id, params, out, png)
+    print(f"mould {mould.mould_id} (seed {mould.seed}): {mould.symmetry}, order {mould.order}, "
+          f"removal {mould.removal}, {mould.n_tethers} tethers, box {mould.box:g} l0")
+
+
+def cmd_simulate(args) -> None:
+    from condor.stages.build import simulate_placed
+
+    scene = get_scene(args.scene)
+    out = _new_output(args.out, args.force)
+    result = simulate_placed(_load_placement(args, scene), scene, args.solver, args.budget,
+                             args.seed, out)
+    print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
+          f"{result.energy_per_cell:.6g}, {result.seconds:.2f} s ({result.solver})")
+    if result.status != "ok":
+        sys.exit(1)
+
+
+def cmd_rasterise(args) -> None:
+    from condor.stages.build import rasterise_file
+
+    out = Path(args.out)
+    if out.suffix not in (".npy", ".png"):
+        raise CLIError(f"--out must end in .npy or .png, got {out}")
+    _new_output(out, args.force)
+    result, scene = rasterise_file(args.simulation, args.scene, out)
+    print(f"{out}: 8 fields at {scene.pixels} px (scene {scene.name!r}) from {result.n_cells} cells")
+
+
+def cmd_check_store(args) -> None:
+    from condor.stages.build import store_report
+
+    lines, whole = store_report(args.store, deep=args.deep)
+    print("\n".join(lines))
+    if not whole:
+        sys.exit(1)
 
 
 def _settings(args) -> tuple[str, dict]:
@@ -237,7 +156,7 @@ def _settings(args) -> tuple[str, dict]:
 
 
 def cmd_train(args) -> None:
-    from condor.stages.surrogate import train
+    from condor.stages.surrogate import train_variant
 
     name, settings = _settings(args)
     checkpoint = Path(args.checkpoint)
@@ -246,131 +165,51 @@ def cmd_train(args) -> None:
                        "(or choose another file)")
     print(f"training {name} ({settings['model']}) on {args.store} into {args.checkpoint}",
           flush=True)
-    history = train(args.store, settings, args.checkpoint, threads=args.threads,
-                    device=args.device, fresh=args.fresh, restart_on_mismatch=False,
-                    log_line=lambda line: print(line, flush=True))
+    history = train_variant(args.store, settings, args.checkpoint, threads=args.threads,
+                            device=args.device, fresh=args.fresh, restart_on_mismatch=False,
+                            log_line=lambda line: print(line, flush=True))
     seconds = sum(r["seconds"] for r in history)
     print(f"{args.checkpoint}: {len(history)} epochs, {seconds:.1f} s in all")
 
 
 def cmd_evaluate(args) -> None:
-    from condor.stages.surrogate import evaluate
-    from condor.surrogate.evaluate import format_correlations, format_summary
+    from condor.stages.surrogate import evaluate_variant
+    from condor.surrogate.evaluate import format_correlations, format_evaluation
 
     out = Path(args.out)
     if out.exists() and any(out.iterdir()) and not args.force:
         raise CLIError(f"--out {str(out)!r} holds files; pass --force to overwrite them")
-    result = evaluate(args.store, args.checkpoint, out, modes=args.modes or None,
-                      device=args.device, baselines=not args.no_baselines, split=args.split)
+    result = evaluate_variant(args.store, args.checkpoint, out, modes=args.modes or None,
+                              device=args.device, baselines=not args.no_baselines,
+                              split=args.split)
     summary = result["summary"]
     print(f"{args.split} split, {len(next(iter(result['evaluations'].values())).mae)} moulds; "
           "mean MAE per field:")
-    print(format_summary(summary))
+    print(format_evaluation(summary))
     print("Pearson r of whole-mould statistics, simulation vs prediction:")
     print(format_correlations(summary))
     print(f"tables and figures in {out}")
 
 
 def cmd_predict(args) -> None:
-    from condor.findings import load_findings
-    from condor.surrogate.answer import (MASK_ONLY_MEASURED, domain_table, domain_verdict,
-                                         format_summary, mould_summary, spread_calibration)
-    from condor.surrogate.calibration import tissue_pixels
-    from condor.surrogate.checkpoint import weights_sha256
-    from condor.surrogate.predict import Predictor, read_mould_inputs, write_prediction
+    from condor.stages.predict import predict_mould
 
-    out = Path(args.out)
-    if out.suffix.lower() not in (".zarr", ".png"):
-        raise CLIError(f"--out {str(out)!r} must end in .zarr or .png")
-    _refuse_dataset(out)
-    _new_output(out, args.force)
-    predictor = Predictor(args.checkpoint, device=args.device, mode=args.mode,
-                          precision=args.precision)
-    placement, verdict = None, None
-    if Path(args.mould).suffix.lower() in (".json", ".svg", ".dxf"):
-        scene = _checkpoint_scene(predictor)
-        placement = _load_placement(args, scene)
-        mould = placement.mould
-        for warning in training_domain_check(mould, scene):
-            print(f"condor predict: warning: {warning}", file=sys.stderr)
-        measured = load_findings()["out_of_domain"]  # experiments/out_of_domain's table
-        verdict = domain_verdict(domain_table(mould, scene), measured.frame(),
-                                 f"{measured.experiment} at {measured.commit}")
-        inputs = input_channels(mould, predictor.native)
-        exact = predictor.mould_arguments([mould])  # N_c and lattice channels, when known
-        n_cells, lattice = exact.get("n_cells"), exact.get("lattice")
-    else:
-        inputs, n_cells = read_mould_inputs(args.mould, predictor.native, predictor.box), None
-        lattice = None
-    if not inputs.any():
-        raise CLIError(f"{args.mould} holds no mould pixel: nothing to predict")
-    if predictor.needs_lattice and lattice is None:
-        print(f"condor predict: warning: {args.mould} is a picture: the lattice channels this "
-              "checkpoint reads are estimated from its pixels, which measured much worse than "
-              f"a mould file's geometry: {MASK_ONLY_MEASURED}. Give the mould as JSON, SVG or "
-              "DXF for the exact channels", file=sys.stderr)
-        lattice = predictor.estimate_lattice(inputs)
-    prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
-    pixel_size = predictor.pixel_size
-    table, calibrated = None, None
-    if pixel_size is not None:
-        from condor.design.search import prediction_spread
-
-        spread = prediction_spread(prediction)  # in normalised units, like the fields
-        factors = None
-        if spread is not None:  # the statistics' spread factors: experiments/spread_calibration
-            calibration = load_findings()["spread_calibration"]
-            factors, calibrated, warning = spread_calibration(
-                calibration.frame(), weights_sha256(predictor.state),
-                f"{calibration.experiment} at "
-                f"{calibration.commit}")
-            if warning is not None:
-                print(f"condor predict: warning: {warning}", file=sys.stderr)
-        table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size,
-                              spread, tissue=tissue_pixels(inputs[None])[0],
-                              sigma_px=predictor.sigma / pixel_size, l0_um=args.l0_um,
-                              factors=factors)
-    if out.suffix.lower() == ".png":
-        plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
-                                symmetrised=bool(predictor.symmetrise))
-    else:
-        attrs = {"checkpoint": str(args.checkpoint), "mould": str(args.mould),
-                 "mode": predictor.mode}
-        if placement is not None:
-            attrs.update({k: v for k, v in placement.record().items() if v is not None})
-        if verdict is not None:
-            attrs["training_domain"] = verdict
-        if table is not None and calibrated is not None:
-            attrs["spread_calibration"] = calibrated
-        if table is not None:
-            attrs["statistics"] = {row.statistic: {"value": float(row.value),
-                                                   "spread": float(row.spread),
-                                                   "unit": row.unit}
-                                   for row in table.itertuples()}
-        write_prediction(out, prediction, inputs, pixel_size, attrs, overwrite=args.force,
-                         l0_um=args.l0_um)
-    print(f"{out}: 8 fields at {predictor.native} px, predicted N_c = "
-          f"{prediction.n_cells:.1f} ({predictor.mode} mode)")
-    if table is not None:
-        print("whole-mould statistics, predicted (+- one simulation's predicted spread):")
-        print(format_summary(table))
-        if calibrated is not None:
-            print(f"  {calibrated}")
-    if verdict is not None:
-        print(f"training domain: {verdict}")
+    result = predict_mould(args.checkpoint, args.mould, args.out, l0_um=args.l0_um, fit=args.fit,
+                           units=args.units, device=args.device, mode=args.mode,
+                           precision=args.precision, force=args.force,
+                           say=lambda line: print(line, flush=True),
+                           warn=lambda line: print(f"condor predict: warning: {line}",
+                                                   file=sys.stderr))
+    print("\n".join(result.lines()))
 
 
 def cmd_design(args) -> None:
     from condor.design import parse_objective
-    from condor.stages.design import design
-    from condor.surrogate.predict import Predictor
+    from condor.stages.design import checkpoint_design_scene, design, summary_lines
 
     parse_objective(args.objective)  # a bad objective is named before anything is loaded
-    scene = _checkpoint_scene(Predictor(args.checkpoint, device="cpu"))
-    if np.isnan(scene.depth):
-        raise CLIError(f"checkpoint {args.checkpoint!r} records no mould depth: its designs "
-                       "cannot be simulated")
-    yours = [_load_mould(args, scene, path) for path in args.mould or ()]
+    scene = checkpoint_design_scene(args.checkpoint)
+    yours = [_load_placement(args, scene, path).mould for path in args.mould or ()]
     keep = tuple(k for k in (args.keep or "").split(",") if k)
     if keep and not yours:
         raise CLIError(f"--keep {args.keep} constrains the search to your mould: give it with "
@@ -381,75 +220,63 @@ def cmd_design(args) -> None:
                      your_moulds=yours, force=args.force, keep=keep,
                      say=lambda line: print(f"condor design: {line}", file=sys.stderr,
                                             flush=True)).iloc[0]
-    print(f"{args.out}: designs.csv, summary.csv, design_01..{args.top:02d} .json/.svg/.dxf, "
-          "predictions.zarr, figures/")
-    print(f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
-          f"{summary['spearman']:.2f} [{summary['spearman_low']:.2f}, "
-          f"{summary['spearman_high']:.2f}] over {int(summary['n'])} confirmed designs")
-    if "best_baseline" in summary:
-        print(f"best test mould of {args.store}: {summary['best_baseline']:.4g} "
-              f"(improvement {summary['improvement']:+.4g})")
-    if yours:
-        import pandas as pd
-
-        table = pd.read_csv(Path(args.out) / "your_moulds.csv")
-        for row in table.itertuples():
-            print(f"yours {row.simulated_objective:.3g} +- {row.simulated_objective_std:.2g} "
-                  f"(predicted {row.predicted_objective:.3g} +- {row.predicted_spread:.2g}) -> "
-                  f"best {summary['best_simulated']:.3g} simulated: {args.objective} "
-                  f"{summary['best_simulated'] - row.simulated_objective:+.3g} "
-                  f"(mould {row.mould}, {args.mould[row.mould - 1]})")
-        print(f"your moulds, predicted and simulated: {Path(args.out) / 'your_moulds.csv'}; "
-              f"drawn beside the best designs in {Path(args.out) / 'figures' / 'designs.png'}")
+    print("\n".join(summary_lines(summary, args.out, args.top, args.objective, args.store,
+                                  args.mould or ())))
 
 
-def _checkpoint_scene(predictor):
-    """The scene a checkpoint was trained on: the preset with its grid (box and pixels), else
-    a scene of its recorded grid and depth (depth NaN when the checkpoint lacks it)."""
-    for scene in PRESETS.values():
-        if scene.pixels == predictor.native and predictor.box is not None and \
-                same_length(scene.box, predictor.box):
-            return scene
-    if predictor.box is None:
-        raise CLIError(f"checkpoint {predictor.path!r} records no pixel size: moulds cannot be "
-                       "placed on its grid (predict takes a (2, H, W) .npy or .png instead)")
-    depth = predictor.depth if predictor.depth is not None else float("nan")
-    return Scene("checkpoint", box=predictor.box, depth=depth, pixels=predictor.native)
+def cmd_completion(args) -> None:
+    sys.stdout.write(completion_script())
 
 
-def _refuse_dataset(path: Path) -> None:
-    """A prediction is never written over a dataset store, nor over a folder that is not a
-    prediction `predict` wrote (a Zarr store of its attributes), --force or not."""
-    if not path.is_dir():
-        return
-    meta = path / "zarr.json"
-    text = meta.read_text(errors="replace") if meta.is_file() else ""
-    if FORMAT in text:
-        raise CLIError(f"--out {str(path)!r} is a condor dataset store; a prediction never "
-                       "replaces one (choose another path)")
-    try:
-        attributes = json.loads(text).get("attributes", {})
-    except (ValueError, AttributeError):
-        attributes = {}
-    if not {"checkpoint", "n_cells"} <= set(attributes):
-        raise CLIError(f"--out {str(path)!r} is a folder that condor predict did not write; "
-                       "--force replaces only a prediction (choose another path)")
+# --- the parser: one function a subcommand ------------------------------------------------------
+
+def _scene_arg(parser: argparse.ArgumentParser, default="default") -> None:
+    parser.add_argument("--scene", default=default, choices=sorted(PRESETS),
+                        help="scene preset: box, depth, pixels (default: %(default)s)")
 
 
-# --- the parser ---------------------------------------------------------------------------------
+def _force_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--force", action="store_true", help="overwrite an existing output")
 
-def build_parser() -> argparse.ArgumentParser:
-    from condor import __version__
 
-    parser = argparse.ArgumentParser(prog="condor", description=__doc__)
-    parser.add_argument("--version", action="version", version=f"condor {__version__}")
-    sub = parser.add_subparsers(dest="command", required=True)
+def _device_arg(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--device", default=None,
+                        help="torch device, e.g. cpu or cuda (default: CUDA when present)")
 
+
+def _windows(l0_um: float = 16.0) -> str:
+    """Each scene's window (its square box) in mm at cell spacing `l0_um`."""
+    return ", ".join(f"{name} {scene.box * l0_um / 1000:.3g} mm"
+                     for name, scene in sorted(PRESETS.items(), key=lambda kv: kv[1].box))
+
+
+def _user_mould_args(parser: argparse.ArgumentParser) -> None:
+    scene = get_scene("default")  # every preset's area fraction and largest extent
+    parser.add_argument("--l0-um", type=_positive_float, default=None,
+                        help="cell spacing l0 in micrometres, for a drawing in mm or um (and "
+                             "drawings written in mm too). A scene's window is its box in l0 "
+                             f"times l0: at --l0-um 16, {_windows(16.0)} square (a drawing "
+                             "larger than that needs --fit)")
+    parser.add_argument("--units", choices=UNITS, default=None,
+                        help="units of a drawing that does not state its own (an SVG without "
+                             "them is read as CSS px, 96 px an inch)")
+    parser.add_argument("--fit", nargs="?", const="area", default=None, choices=FIT_MODES,
+                        help="scale the drawing, keeping its aspect ratio: --fit extent makes "
+                             f"its larger side {scene.max_extent:g} of the window (the training "
+                             "moulds' largest); --fit (or --fit area) makes its area the "
+                             f"training moulds' ({100 * scene.area_fraction:g}%% of the box), "
+                             "capped by the extent fit. The scale factor is printed and "
+                             "recorded. Default: keep the drawn size")
+
+
+def _parser_completion(sub) -> None:
     p = sub.add_parser("completion", help="print a bash completion script: "
                        "eval \"$(condor completion)\" (or save it in "
                        "~/.local/share/bash-completion/completions/condor)")
     p.set_defaults(func=cmd_completion)
 
+
+def _parser_mould(sub) -> None:
     p = sub.add_parser("mould", help="generate one mould: geometry JSON and a picture")
     p.add_argument("--seed", type=_non_negative_int, required=True, help="global seed")
     p.add_argument("--id", type=_non_negative_int, default=0, help="mould id (default 0)")
@@ -462,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_mould)
 
+
+def _parser_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate one mould (JSON, SVG or DXF)")
     p.add_argument("mould", help="mould: the generator's JSON, a minimal JSON (outline and "
                    "tethers), an SVG or a DXF drawing (docs/user_moulds.md)")
@@ -476,6 +305,8 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_simulate)
 
+
+def _parser_rasterise(sub) -> None:
     p = sub.add_parser("rasterise", help="one simulation result to the 8 fields (.npy or .png)")
     p.add_argument("simulation", help="result file from `condor simulate`")
     p.add_argument("--out", required=True, help="fields.npy (8, y, x) or fields.png")
@@ -483,6 +314,8 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_rasterise)
 
+
+def _parser_check_store(sub) -> None:
     p = sub.add_parser("check-store", help="list missing, pending, failed and corrupt samples")
     p.add_argument("store", nargs="?", default="results/dataset.zarr")
     p.add_argument("--deep", action="store_true",
@@ -490,6 +323,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "damaged ones aside, to <store>.damaged/, for the next run to rebuild")
     p.set_defaults(func=cmd_check_store)
 
+
+def _parser_train(sub) -> None:
     p = sub.add_parser("train", help="train a surrogate variant on a dataset store (an "
                        "interrupted run resumes); a flag left out takes the variant's setting")
     p.add_argument("--store", required=True, help="dataset store (.zarr) from the workflow")
@@ -527,11 +362,13 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_train)
 
+
+def _parser_evaluate(sub) -> None:
     p = sub.add_parser("evaluate", help="test-split metrics, figures and baselines of a checkpoint")
     p.add_argument("--store", required=True, help="dataset store (.zarr)")
     p.add_argument("--checkpoint", required=True, help="checkpoint from `condor train`")
     p.add_argument("--out", required=True, help="folder for the CSV tables and PNG figures")
-    p.add_argument("--split", default="test", choices=["train", "val", "test"])
+    p.add_argument("--split", default="test", choices=SPLITS)
     p.add_argument("--modes", nargs="+", choices=PREDICTION_MODES, default=None,
                    help="prediction modes to evaluate (default: the checkpoint's and train)")
     p.add_argument("--no-baselines", action="store_true", help="skip the baselines")
@@ -539,6 +376,8 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_evaluate)
 
+
+def _parser_predict(sub) -> None:
     p = sub.add_parser("predict", help="predict the 8 fields of one mould with a checkpoint")
     p.add_argument("mould", help="mould: JSON, SVG or DXF (as for simulate), or its input "
                    "channels as a (2, H, W) .npy / 2-channel .png")
@@ -556,6 +395,8 @@ def build_parser() -> argparse.ArgumentParser:
     _force_arg(p)
     p.set_defaults(func=cmd_predict)
 
+
+def _parser_design(sub) -> None:
     p = sub.add_parser("design", help="search moulds for an objective with a surrogate, confirm "
                        "by simulation, write drawings")
     p.add_argument("--objective", required=True,
@@ -590,6 +431,21 @@ def build_parser() -> argparse.ArgumentParser:
     _user_mould_args(p)
     _force_arg(p)
     p.set_defaults(func=cmd_design)
+
+
+SUBCOMMANDS = (_parser_completion, _parser_mould, _parser_simulate, _parser_rasterise,
+               _parser_check_store, _parser_train, _parser_evaluate, _parser_predict,
+               _parser_design)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    from condor import __version__
+
+    parser = argparse.ArgumentParser(prog="condor", description=__doc__)
+    parser.add_argument("--version", action="version", version=f"condor {__version__}")
+    sub = parser.add_subparsers(dest="command", required=True)
+    for add in SUBCOMMANDS:
+        add(sub)
     return parser
 
 
@@ -623,15 +479,6 @@ def completion_script(parser: argparse.ArgumentParser | None = None) -> str:
         "}",
         "complete -o filenames -F _condor condor",
         ""])
-
-
-def cmd_completion(args) -> None:
-    sys.stdout.write(completion_script())
-
-
-def _device_arg(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--device", default=None,
-                        help="torch device, e.g. cpu or cuda (default: CUDA when present)")
 
 
 def main(argv: list[str] | None = None) -> None:

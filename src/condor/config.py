@@ -28,12 +28,12 @@ from condor.model.anneal import T_INIT, T_RATIO
 from condor.model.energy import DELTA
 from condor.data.fields import FIELD_NAMES, window_width
 from condor.model.lattice import SHELL_KBAR, fcc_layers
-from condor.data.moulds import MouldParams, is_tether_free
+from condor.moulds.paper import MouldParams, is_tether_free
 from condor.model.scenes import Scene, get_scene
 from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
-from condor.studies.reference import MIN_REPLICAS
+from condor.studies.recipes import MIN_REPLICAS
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
 
@@ -256,7 +256,7 @@ class Config:
                     f"config key simulation/replicas/{name}: {counts[name]} is too few; the "
                     "accuracy study and the anneal ladder measure against the mean of "
                     f"{MIN_REPLICAS} or more replicas a test mould "
-                    "(condor.studies.reference.MIN_REPLICAS)")
+                    "(condor.studies.recipes.MIN_REPLICAS)")
         if check_surrogate:
             self._check_surrogate()
         scene = self.scene

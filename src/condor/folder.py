@@ -22,7 +22,8 @@ import socket
 from pathlib import Path
 
 from condor.config import Config
-from condor.data.store import MOULD_ARRAYS, SAMPLE_ARRAYS, StoreError, open_group, scan_store
+from condor.data.store import MOULD_ARRAYS, SAMPLE_ARRAYS, StoreError, open_group
+from condor.data.store_check import scan_store
 
 LOCK_NAME = ".condor.lock"
 
@@ -154,7 +155,7 @@ class RunLock:
 # --- repairs -----------------------------------------------------------------------------------
 
 def store_gaps(store: str | Path) -> dict[str, set]:
-    """What the store lacks, by the step that writes it again (condor.data.store.scan_store: chunk
+    """What the store lacks, by the step that writes it again (condor.data.store_check.scan_store: chunk
     files listed and their headers read; only the flags and the layout are decompressed):
     {"inputs": moulds with a replica whose inputs are not ready or with a damaged chunk of an
     array the mould stage writes, "fields": those and the moulds with a replica not yet

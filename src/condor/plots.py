@@ -44,7 +44,7 @@ def save(fig, path, dpi: int = 110) -> Path:
 # --- moulds -----------------------------------------------------------------------------------
 
 def draw_mould(ax, mould, title: bool = True) -> None:
-    """The footprint (filled, holes open) and tethers of a condor.data.moulds.Mould on an Axes."""
+    """The footprint (filled, holes open) and tethers of a condor.moulds.mould.Mould on an Axes."""
     from matplotlib.patches import Circle, PathPatch
     from matplotlib.path import Path as MplPath
 

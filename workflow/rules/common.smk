@@ -45,7 +45,7 @@ def report_settings(*keys):
 
 
 def report_inputs(wildcards):
-    """Every file the report reads, by the key condor.report.REPORT_INPUTS names it with."""
+    """Every file the report reads, by the key condor.report.page.REPORT_INPUTS names it with."""
     return {
         "dataset_summary": rules.dataset.output[0],
         "regimes": rules.gallery.output.regimes,

@@ -3,7 +3,7 @@ per-sample table of the store."""
 import sys
 
 from condor.stages import start_job
-from condor.stages.dataset import IncompleteStoreError, finish_dataset
+from condor.stages.build import IncompleteStoreError, finish_dataset
 
 config = start_job(snakemake)
 try:

@@ -1,5 +1,5 @@
 """The dataset card (README.md beside the store), generated from the store."""
-from condor.data.reader import write_card
+from condor.data.dataset import write_card
 from condor.stages import start_job
 
 config = start_job(snakemake)

@@ -2,7 +2,7 @@
 import os
 
 from condor.stages import start_job
-from condor.stages.surrogate import evaluate_baselines
+from condor.stages.surrogate import evaluate_store_baselines
 
 start_job(snakemake)
-evaluate_baselines(snakemake.params.store, os.path.dirname(snakemake.output.summary))
+evaluate_store_baselines(snakemake.params.store, os.path.dirname(snakemake.output.summary))

@@ -1,6 +1,6 @@
 """The mould gallery figure and the regime/removal frequency table."""
 from condor.stages import start_job
-from condor.stages.dataset import mould_gallery
+from condor.stages.build import write_gallery
 
 start_job(snakemake)
-mould_gallery(snakemake.input, snakemake.params.n, snakemake.output.gallery, snakemake.output.regimes)
+write_gallery(snakemake.input, snakemake.params.n, snakemake.output.gallery, snakemake.output.regimes)

@@ -5,7 +5,7 @@ Exit status 1 when the page is (nearly) blank or Chromium is missing.
 """
 import sys
 
-from condor.report import screenshot, screenshot_coverage
+from condor.report.screenshot import screenshot, screenshot_coverage
 
 html_path = sys.argv[1] if len(sys.argv) > 1 else "results/report.html"
 png_path = sys.argv[2] if len(sys.argv) > 2 else html_path.removesuffix(".html") + ".png"

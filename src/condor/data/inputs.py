@@ -1,6 +1,6 @@
 """What the surrogate sees of a mould: the mask channels, or the lattice channels.
 
-The paper's inputs are two 0/1 masks (`condor.data.moulds.input_channels`: mould, tether), each
+The paper's inputs are two 0/1 masks (`condor.moulds.mould.input_channels`: mould, tether), each
 pixel judged at its centre. They hide what sets the tension: a post is a few whole pixels at
 64 px (tether radii 1.3-4 px), and a tether narrower than a/2 anchors the posts picked within
 a/2 (`condor.model.lattice`), so the number of fixed cells it holds is not in the picture at all.
@@ -85,7 +85,7 @@ def channels_of_sites(positions: np.ndarray, fixed: np.ndarray, depth: float, bo
 
 
 def of_mould(mould, scene) -> np.ndarray:
-    """The lattice channels of a `condor.data.moulds.Mould` on `scene`'s grid."""
+    """The lattice channels of a `condor.moulds.mould.Mould` on `scene`'s grid."""
     return lattice_channels(mould.polygon, mould.tethers, scene.depth, scene.box, scene.pixels,
                             scene.sigma)
 

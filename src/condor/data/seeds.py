@@ -1,6 +1,6 @@
 """Seed conventions: every random stream of a dataset is a pure function of the global seed.
 
-Streams in other modules: a mould's geometry uses default_rng([seed, mould]) (condor.data.moulds),
+Streams in other modules: a mould's geometry uses default_rng([seed, mould]) (condor.moulds.paper),
 the split permutation default_rng([seed, 0x5B117]) (condor.data.store.assign_splits). Here: the
 simulation seed of each replica of a mould, and the seeds of study runs, which must be
 independent of every replica (a study compares methods against the replicas).

@@ -1,7 +1,7 @@
 """Search the design space with CMA-ES (`cma`), scoring batches of candidates with the surrogate.
 
 One generation = one batch: decode each vector into a mould (condor.design.space), rasterise
-it at the predictor's native size (condor.data.moulds.input_channels), predict the fields, and
+it at the predictor's native size (condor.moulds.mould.input_channels), predict the fields, and
 score the normalised fields with the objective:
 
     score = objective - penalty * constraint violation - repair_weight * repair
@@ -31,7 +31,7 @@ import numpy as np
 import pandas as pd
 from tqdm.auto import tqdm
 
-from condor.data.moulds import Mould, input_channels
+from condor.moulds.mould import Mould, input_channels
 from condor.model.scenes import SIGMA_L0, same_length
 from condor.surrogate.answer import spread_draws
 
@@ -214,7 +214,7 @@ def _to_minimise(scores: np.ndarray) -> list[float]:
     return [float(-s) if np.isfinite(s) else float(-worst) for s in scores]
 
 
-def search(objective: Objective, space: DesignSpace, predictor, budget: int,
+def search_designs(objective: Objective, space: DesignSpace, predictor, budget: int,
            seed: int = 0, popsize: int | None = None, sigma0: float = 0.5,
            n_init: int | None = None, penalty: float = 10.0, repair_weight: float = 0.05,
            progress: bool | None = None) -> SearchResult:

@@ -35,7 +35,7 @@ to stay feasible, while every returned mould is valid):
   * at least `min_tethers` tethers: fewer is allowed (still a valid mould) but each missing
     tether adds 1 to repair.
 
-Every mould `decode` returns passes condor.data.moulds.validate_mould (checked on each decode).
+Every mould `decode` returns passes condor.moulds.mould.check_mould (checked on each decode).
 """
 
 from __future__ import annotations
@@ -49,7 +49,7 @@ import shapely
 from shapely.geometry import Polygon
 
 from condor.model.lattice import HALF
-from condor.data.moulds import InvalidMouldError, Mould, validate_mould
+from condor.moulds.mould import InvalidMouldError, Mould, check_mould
 
 SYMMETRY_KINDS = ("none", "single_mirror", "double_mirror", "cyclic", "dihedral")
 _GENES_PER_TETHER = 4
@@ -242,7 +242,7 @@ class DesignSpace:
             unpruned_tethers=tethers.copy(), area_fraction=float(self.area_fraction),
             outline="simple_polygon")
         try:
-            validate_mould(mould)
+            check_mould(mould)
         except InvalidMouldError as error:  # a bug in the repair, never a user error
             raise RuntimeError(f"design space produced an invalid mould from {x.tolist()}: "
                                f"{error}") from error
@@ -386,7 +386,7 @@ def default_space(scene, objective=None, **overrides) -> DesignSpace:
 
 
 def constrained_space(scene, mould, keep, objective=None) -> DesignSpace:
-    """The search's space constrained to a user's `mould` (condor.data.moulds.Mould, placed in the
+    """The search's space constrained to a user's `mould` (condor.moulds.mould.Mould, placed in the
     scene's box): `keep` holds "footprint" (its outline, fixed: the search places the posts
     alone, from the outline's centroid, and the symmetry is none) and/or "posts" (its number
     of posts: that many tether genes, each placing one post, symmetry none; a post with no

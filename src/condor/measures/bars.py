@@ -11,3 +11,6 @@ MAX_BIAS = 0.01
 # R_CEILING_SLACK of its ceiling (a perfect predictor's r against one simulation).
 MIN_R = 0.98
 R_CEILING_SLACK = 0.01
+# The spread map's 90% intervals are calibrated when they hold between these shares of the
+# replicas' pixels (the report's headline verdict).
+CALIBRATED_90 = (0.85, 0.95)

@@ -2,7 +2,7 @@
 The workflow's scripts and the `condor` CLI call these and nothing else.
 
 `dataset` (store, moulds, simulation, fields), `surrogate` (train, evaluate), `studies`
-(accuracy, ladder, convergence, stability); the report is `condor.report.condor_report`.
+(accuracy, ladder, convergence, stability); the report is `condor.report.page.condor_report`.
 """
 
 from __future__ import annotations

@@ -31,15 +31,15 @@ import pandas as pd
 import xarray as xr
 
 from condor import plots
-from condor.design import (confirm, constrained_space, dataset_baseline, default_space,
+from condor.design import (confirm_designs, constrained_space, dataset_baseline, default_space,
                            design_table,
-                           parse_objective, predict_designs, search, simulate_designs)
+                           parse_objective, predict_designs, search_designs, simulate_designs)
 from condor.design.search import calibrated_statistic
-from condor.data.drawings import write_dxf, write_svg
+from condor.moulds.write import write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
 from condor.model.lattice import build_lattice
-from condor.data.moulds import save_json
+from condor.moulds.mould import save_json
 from condor.model.scenes import Scene, same_length
 from condor.data.store import CHANNELS, open_store, quiet_zarr
 from condor.surrogate.predict import Predictor
@@ -150,7 +150,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     numbers have one home, the workflow config's `design:` defaults (the packaged schema),
     which the workflow and the CLI pass. Every
     error a user can cause (objective, scene, budget, a bad mould file) is raised before the
-    search runs. `your_moulds`: condor.data.moulds.Mould objects (a user's own designs) scored
+    search runs. `your_moulds`: condor.moulds.mould.Mould objects (a user's own designs) scored
     the same way, predicted and simulated, into your_moulds.csv: the designs to beat, and drawn
     first in figures/designs.png. `keep`: "footprint" and/or "posts" of the first of them
     constrain the search (condor.design.constrained_space). `say`: called with one line as
@@ -179,7 +179,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
         table.to_csv(out / "your_moulds.csv", index=False)
     constraint = f", keeping your mould's {' and '.join(keep)}" if keep else ""
     say(f"phase 2/4: searching {budget} designs with the surrogate{constraint}")
-    result = search(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
+    result = search_designs(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
     if "predicted_spread" in result.designs:
         result.designs["predicted_spread"] *= spread_factor
     log.info("search: %d designs, %.0f per CPU-minute; best predicted %s = %.4g",
@@ -188,7 +188,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     baseline = dataset_baseline(parsed, open_store(store), split="test") if store else None
     say(f"phase 3/4: confirming the best {n_top} and {n_random} random designs by "
         f"simulation, {replicas} replica(s) each")
-    confirmation = confirm(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
+    confirmation = confirm_designs(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
                            baseline=baseline, solver=solver, progress=progress)
     table = design_table(result, confirmation, n=max(n_top, 10))
     table.to_csv(out / "designs.csv", index=False)
@@ -208,6 +208,43 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     _figures(out / "figures", table, confirmation, result, predicted, objective, yours)
     log.info("\n%s", confirmation.summary.to_string(index=False))
     return confirmation.summary
+
+
+def checkpoint_design_scene(checkpoint) -> Scene:
+    """The scene a checkpoint was trained on (condor.stages.predict.checkpoint_scene), in
+    which its designs are simulated; DesignOutputError when it records no mould depth."""
+    from condor.stages.predict import checkpoint_scene
+
+    scene = checkpoint_scene(Predictor(checkpoint, device="cpu"))
+    if np.isnan(scene.depth):
+        raise DesignOutputError(f"checkpoint {checkpoint!r} records no mould depth: its designs "
+                                "cannot be simulated")
+    return scene
+
+
+def summary_lines(summary, out_dir, n_top: int, objective: str, store=None,
+                  mould_paths=()) -> list[str]:
+    """What `condor design` prints of its run: the files, the best confirmed design and the
+    rank correlation, the dataset's best test mould, and each of your moulds against the best."""
+    lines = [f"{out_dir}: designs.csv, summary.csv, design_01..{n_top:02d} .json/.svg/.dxf, "
+             "predictions.zarr, figures/",
+             f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
+             f"{summary['spearman']:.2f} [{summary['spearman_low']:.2f}, "
+             f"{summary['spearman_high']:.2f}] over {int(summary['n'])} confirmed designs"]
+    if "best_baseline" in summary:
+        lines.append(f"best test mould of {store}: {summary['best_baseline']:.4g} "
+                     f"(improvement {summary['improvement']:+.4g})")
+    if mould_paths:
+        table = pd.read_csv(Path(out_dir) / "your_moulds.csv")
+        lines += [f"yours {row.simulated_objective:.3g} +- {row.simulated_objective_std:.2g} "
+                  f"(predicted {row.predicted_objective:.3g} +- {row.predicted_spread:.2g}) -> "
+                  f"best {summary['best_simulated']:.3g} simulated: {objective} "
+                  f"{summary['best_simulated'] - row.simulated_objective:+.3g} "
+                  f"(mould {row.mould}, {mould_paths[row.mould - 1]})"
+                  for row in table.itertuples()]
+        lines.append(f"your moulds, predicted and simulated: {Path(out_dir) / 'your_moulds.csv'}; "
+                     f"drawn beside the best designs in {Path(out_dir) / 'figures' / 'designs.png'}")
+    return lines
 
 
 def objective_spread_factor(objective, predictor) -> tuple[float, str]:

@@ -24,16 +24,16 @@ import torch
 from condor import plots
 from condor.config import Config
 from condor.studies.stability import run_cases
-from condor.data.moulds import input_channels
+from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
-from condor.stages.dataset import load_moulds
+from condor.stages.build import load_moulds
 from condor.data.store import open_store
 from condor.studies import accuracy as accuracy_study
 from condor.studies.convergence import convergence as convergence_study
 from condor.studies.fidelity import fidelity_table, paper_ensemble, prediction_row
 from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
-from condor.studies.reference import reference_ensemble
+from condor.studies.recipes import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
 from condor.surrogate.baselines import fit_baselines
 from condor.surrogate.samples import dataset_pixel_size, usable_samples

@@ -25,10 +25,8 @@ from condor.model.scenes import same_length
 from condor.plots import evaluation_figures
 from condor.data.store import open_store
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
-from condor.surrogate.evaluate import combine_summaries
-from condor.surrogate.evaluate import evaluate as evaluate_checkpoint
-from condor.surrogate.evaluate import evaluate_baselines as evaluate_baseline_methods
-from condor.surrogate.train import train as train_loop
+from condor.surrogate.evaluate import combine_summaries, evaluate, evaluate_baselines
+from condor.surrogate.train import train
 from condor.surrogate.variants import train_config
 
 log = logging.getLogger("condor")
@@ -55,9 +53,9 @@ def check_checkpoint_path(checkpoint) -> Path:
     return checkpoint
 
 
-def train(store, settings: dict, checkpoint, history_csv=None, threads: int | None = None,
-          device=None, fresh: bool = False, restart_on_mismatch: bool = True,
-          log_line=log.info) -> list[dict]:
+def train_variant(store, settings: dict, checkpoint, history_csv=None,
+                  threads: int | None = None, device=None, fresh: bool = False,
+                  restart_on_mismatch: bool = True, log_line=log.info) -> list[dict]:
     """Train a variant (flat `settings`, condor.surrogate.variants) on the dataset `store`,
     resuming its working checkpoint when that is an interrupted run of the same settings and
     data, then publish `checkpoint` and the per-epoch history CSV. A working checkpoint of
@@ -77,12 +75,12 @@ def train(store, settings: dict, checkpoint, history_csv=None, threads: int | No
     if fresh:
         work.unlink(missing_ok=True)
     try:
-        history = train_loop(ds, cfg, work, device=device, log=log_line)
+        history = train(ds, cfg, work, device=device, log=log_line)
     except CheckpointMismatchError as err:
         if not (restart_on_mismatch or _finished(work)):
             raise CheckpointMismatchError(f"{err} (pass --fresh to start over)") from err
         log_line(f"training from scratch: {err}")
-        history = train_loop(ds, cfg, work, device=device, log=log_line, resume=False)
+        history = train(ds, cfg, work, device=device, log=log_line, resume=False)
     tmp = checkpoint.with_name(f".{checkpoint.name}.publish")
     shutil.copyfile(work, tmp)
     os.replace(tmp, checkpoint)
@@ -112,7 +110,7 @@ def check_same_grid(state: dict, ds, checkpoint, store) -> None:
             f"(scene {ds.attrs.get('scene', {}).get('name')!r}): evaluate it on its own scene")
 
 
-def evaluate(store, checkpoint, out_dir, name: str | None = None, modes=None, device=None,
+def evaluate_variant(store, checkpoint, out_dir, name: str | None = None, modes=None, device=None,
              baselines: bool = False, split: str = "test") -> dict:
     """One variant on `split`: CSV tables in out_dir, figures in out_dir/figures."""
     if device is not None:
@@ -120,16 +118,16 @@ def evaluate(store, checkpoint, out_dir, name: str | None = None, modes=None, de
     ds = open_store(store)
     check_same_grid(load_checkpoint(checkpoint), ds, checkpoint, store)
     out_dir = Path(out_dir)
-    result = evaluate_checkpoint(checkpoint, ds, out_dir=out_dir, split=split, modes=modes,
-                                 baselines=baselines, device=device, name=name)
+    result = evaluate(checkpoint, ds, out_dir=out_dir, split=split, modes=modes,
+                      baselines=baselines, device=device, name=name)
     _draw(result, out_dir / "figures")
     return result
 
 
-def evaluate_baselines(store, out_dir) -> dict:
-    """The baselines alone, with the same tables and figures as `evaluate`."""
+def evaluate_store_baselines(store, out_dir) -> dict:
+    """The baselines alone, with the same tables and figures as `evaluate_variant`."""
     out_dir = Path(out_dir)
-    result = evaluate_baseline_methods(open_store(store), out_dir=out_dir)
+    result = evaluate_baselines(open_store(store), out_dir=out_dir)
     _draw(result, out_dir / "figures")
     return result
 

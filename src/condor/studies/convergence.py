@@ -15,6 +15,8 @@ scaled with the box).
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import math
 
 import numpy as np
@@ -24,7 +26,7 @@ from condor.measures import estimators as est
 from condor.measures.bars import SAME_STATES
 from condor.data.fields import FIELD_NAMES, cell_fields, normalise
 from condor.model.lattice import HALF
-from condor.data.moulds import generate_mould
+from condor.moulds.paper import generate_mould
 from condor.progress import progress
 from condor.data.seeds import study_seed
 from condor.model.simulate import simulate
@@ -83,7 +85,7 @@ def convergence(scene, moulds, n_seeds: int = 3, depths=(2.0, 3.0, 4.0), box_sca
         runs = {}
         for scale in box_scales or ():
             box = scene.box * scale
-            scaled = generate_mould(mould.seed, mould.mould_id, box)
+            scaled = generate_mould(mould.seed, mould.mould_id, replace(scene, box=box))
             runs[box] = _ensemble(scaled.polygon, scaled.tethers, scene.depth, box, scene,
                                   scene.sigma * scale, seeds, solver)
         if runs:

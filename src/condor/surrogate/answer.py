@@ -183,7 +183,7 @@ def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "") 
     return factors, note, warning
 
 
-def format_summary(table: pd.DataFrame) -> str:
+def format_mould_summary(table: pd.DataFrame) -> str:
     """The summary as lines "  alignment      0.62 +- 0.04  (0..1)"."""
     lines = []
     for row in table.itertuples():
@@ -196,10 +196,10 @@ def format_summary(table: pd.DataFrame) -> str:
 def domain_table(mould, scene) -> pd.DataFrame:
     """Where `mould` sits against the training moulds of `scene`, property by property:
     `property`, `value`, `training` (the generated moulds' range), `inside` (bool). The
-    ranges are condor.data.drawings' (docs/user_moulds.md, "Predicting a mould unlike the training
+    ranges are condor.moulds.domain's (docs/user_moulds.md, "Predicting a mould unlike the training
     moulds")."""
-    from condor.data.drawings import (AREA_WARN, TRAINING_MIN_TETHERS, TRAINING_TETHER_RADIUS,
-                                 _tethers_without_pixels)
+    from condor.moulds.domain import (AREA_WARN, TRAINING_MIN_TETHERS, TRAINING_TETHER_RADIUS,
+                                      tethers_without_pixels)
 
     box = float(scene.box)
     fraction = mould.polygon.area / box ** 2
@@ -209,7 +209,7 @@ def domain_table(mould, scene) -> pd.DataFrame:
     n = len(tethers)
     radii = tethers[:, 2] / box
     low, high = TRAINING_TETHER_RADIUS
-    hidden = len(_tethers_without_pixels(tethers, box, scene.pixels))
+    hidden = len(tethers_without_pixels(tethers, box, scene.pixels))
     rows = [
         ("area / box area", f"{fraction:.3g}", f"{scene.area_fraction:g} exactly (within "
          f"+-{AREA_WARN:.0%} tolerated)", abs(fraction / scene.area_fraction - 1) <= AREA_WARN),

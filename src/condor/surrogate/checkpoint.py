@@ -10,9 +10,12 @@ from pathlib import Path
 import torch
 
 from .samples import FieldScaling
-from .models import PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator
+from .networks import PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator
 
 FORMAT = "condor-surrogate/1"
+# Training settings (TrainConfig) renamed since a checkpoint may have been written: the old
+# key -> the name now. load_checkpoint reads an old checkpoint under the new names.
+RENAMED_SETTINGS = {"model": "network"}
 
 
 class CheckpointError(ValueError):
@@ -79,6 +82,9 @@ def load_checkpoint(path, map_location="cpu") -> dict:
     missing = {"generator", "generator_config", "scaling", "data", "config"} - set(state)
     if missing:
         raise CheckpointError(f"checkpoint {str(path)!r} lacks {sorted(missing)}")
+    for old, new in RENAMED_SETTINGS.items():
+        if old in state["config"] and new not in state["config"]:
+            state["config"][new] = state["config"].pop(old)
     return state
 
 

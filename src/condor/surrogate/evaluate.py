@@ -121,7 +121,7 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
     """Evaluate a checkpoint (in each prediction mode of `modes`, default the checkpoint's
     own and "train", as reference pix2pix predicts) and the baselines on `split`.
 
-    Methods are named f"{name}_{mode}" (name defaults to the checkpoint's model kind).
+    Methods are named f"{name}_{mode}" (name defaults to the checkpoint's network kind).
     Returns {"evaluations": {method: Evaluation}, "summary": DataFrame (method rows, with
     seconds_per_mould: CPU time of the whole-split prediction / moulds)}; with `out_dir`,
     also writes per-sample MAE CSVs, correlation CSVs and summary.csv.
@@ -133,7 +133,7 @@ def evaluate(checkpoint_path, ds, out_dir=None, split: str = "test", modes=None,
     lattice = model_inputs(ds, usable_samples(ds, split), "lattice") if predictor.needs_lattice \
         else None
     modes = modes or list(dict.fromkeys([predictor.mode, "train"]))
-    name = name or predictor.state["config"]["model"]
+    name = name or predictor.state["config"]["network"]
     predictions, seconds = {}, {}
     for mode in modes:
         predictor.mode = mode
@@ -166,7 +166,7 @@ def combine_summaries(paths) -> pd.DataFrame:
     return frame
 
 
-def format_summary(summary: pd.DataFrame, field_names=FIELD_NAMES) -> str:
+def format_evaluation(summary: pd.DataFrame, field_names=FIELD_NAMES) -> str:
     """Text table: mean MAE per field (columns) for each method (rows), with the mean over
     fields and the ratio of each method's mean MAE to the best baseline's."""
     columns = [f"mae_{k}" for k in field_names] + ["mae_mean"]

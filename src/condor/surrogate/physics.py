@@ -327,7 +327,7 @@ def tissue_mask(inputs: torch.Tensor, reach: int = TISSUE_REACH_PX) -> torch.Ten
     return F.max_pool2d(occupied, 2 * reach + 1, stride=1, padding=reach)
 
 
-# --- the symmetrised sum (condor.surrogate.predict._symmetrised_physics) ---------------------
+# --- the symmetrised sum (condor.surrogate.symmetrise.symmetrised) ------------------------------
 
 @numba.njit(cache=True)
 def symmetrised_sum_kernel(fields, spread, pixel_source, field_source, weight, variance_weight,
@@ -336,7 +336,7 @@ def symmetrised_sum_kernel(fields, spread, pixel_source, field_source, weight, v
     read. fields, spread (K, M, 8, H*W) float32: decode's fields and spreads of transform k's
     output of mould m, pixels row-major; pixel_source (K, H*W): the pixel of transform k's
     output that apply_symmetry(k, inverse=True) moves onto each pixel; field_source, weight,
-    variance_weight (K, 8): predict._FIELD_MAPS. Adds into mean and variance (M, 8, H*W)
+    variance_weight (K, 8): symmetrise._FIELD_MAPS. Adds into mean and variance (M, 8, H*W)
     float64: over k, weight[k, f] x field field_source[k, f] moved back, and variance_weight
     x its spread squared."""
     k_count, m_count, _, n_pixels = fields.shape

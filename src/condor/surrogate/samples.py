@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from condor.data.reader import usable_samples  # noqa: F401  (the one home; re-exported here)
+from condor.data.dataset import usable_samples  # noqa: F401  (the one home; re-exported here)
 from condor.data.fields import FIELD_NAMES
 from condor.data.inputs import stress_channels
 from condor.data.store import CHANNELS as CHANNEL_NAMES

@@ -31,12 +31,14 @@ from .samples import (CHANNEL_NAMES, FIELD_NAMES, N_SYMMETRIES, FieldScaling, Sa
                    apply_symmetry, check_dataset, compute_scaling, data_fingerprint,
                    dataset_pixel_size, INPUT_VARIABLES, model_inputs, n_input_channels,
                    usable_samples)
-from .models import (PREDICTION_MODES, PatchConfig, PatchDiscriminator, UNetConfig,
+from .modes import PREDICTION_MODES
+from .networks import (PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
-from .predict import default_device, run_model
+from .inference import default_device
+from .predict import run_model
 
-MODEL_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
+NETWORK_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
 HEADS = ("tanh", "physics")
 LOSSES = ("l1", "mse", "gaussian")
 SCALINGS = ("minmax", "standard")
@@ -58,10 +60,10 @@ class TrainConfig:
     """Training settings; the field defaults are the paper's (pix2pix, lambda 1000, Adam 2e-4,
     betas 0.5/0.999, batch 1, 10 epochs): the baseline every preset of
     condor.surrogate.variants.PRESETS names its changes against, and what a checkpoint written
-    before a setting existed is read with (`_check_resumable`). The default model is the
+    before a setting existed is read with (`_check_resumable`). The default network is the
     preset `unet` (`variants.resolve("unet")`, what `condor train` trains by default).
 
-    model: "pix2pix" (paper generator and discriminator at 256 px; data resampled to 256),
+    network: "pix2pix" (paper generator and discriminator at 256 px; data resampled to 256),
     "unet_gan" (U-Net `unet` + PatchGAN `patch`, same losses) or "unet_l1" (U-Net, L1 only).
     unet/patch: None picks UNetConfig.for_size(native size) / PatchConfig().
     prediction_mode: BatchNorm/dropout mode for validation and default for prediction.
@@ -72,7 +74,7 @@ class TrainConfig:
     symmetrise: predict (validation, and by default `predict`/`evaluate`) as the mean over the
     16 symmetries of the prediction, each transformed back (test-time symmetrisation).
     head: "tanh" (fields min/max-scaled to [-1, 1] through tanh, the paper's) or "physics"
-    (condor.surrogate.physics: sum(P) = N_c, Sx2+Sy2+Sz2 = P, a spread map; model "unet" and
+    (condor.surrogate.physics: sum(P) = N_c, Sx2+Sy2+Sz2 = P, a spread map; network "unet" and
     loss "gaussian" only).
     loss: pixel loss of "unet_l1"/"unet": "l1" (the paper's; its minimiser is the per-pixel
     median), "mse" (the mean) or "gaussian" (physics head: MSE of the mean + NLL of the spread).
@@ -97,7 +99,7 @@ class TrainConfig:
     the store's `lattice`) or "both" (the four channels).
     """
 
-    model: str = "pix2pix"
+    network: str = "pix2pix"
     unet: UNetConfig | None = None
     patch: PatchConfig | None = None
     epochs: int = 10
@@ -138,8 +140,8 @@ class TrainConfig:
                                              for b in self.betas)):
             raise ValueError(f"TrainConfig.betas = {list(self.betas)} must be Adam's two "
                              f"decay rates, each in [0, 1)")
-        if self.model not in MODEL_KINDS:
-            raise ValueError(f"TrainConfig.model {self.model!r} is not one of {MODEL_KINDS}")
+        if self.network not in NETWORK_KINDS:
+            raise ValueError(f"TrainConfig.network {self.network!r} is not one of {NETWORK_KINDS}")
         if self.prediction_mode not in PREDICTION_MODES:
             raise ValueError(f"TrainConfig.prediction_mode {self.prediction_mode!r} is not one "
                              f"of {PREDICTION_MODES}")
@@ -151,10 +153,10 @@ class TrainConfig:
         if (self.head == "physics") != (self.loss == "gaussian"):
             raise ValueError(f"TrainConfig: loss 'gaussian' and head 'physics' go together (got "
                              f"loss {self.loss!r}, head {self.head!r})")
-        if self.head == "physics" and self.model != "unet":
-            raise ValueError(f"TrainConfig: head 'physics' needs model 'unet', got {self.model!r}")
-        if self.model != "unet" and self.loss != "l1":
-            raise ValueError(f"TrainConfig: model {self.model!r} trains on L1; loss "
+        if self.head == "physics" and self.network != "unet":
+            raise ValueError(f"TrainConfig: head 'physics' needs network 'unet', got {self.network!r}")
+        if self.network != "unet" and self.loss != "l1":
+            raise ValueError(f"TrainConfig: network {self.network!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
         for name in ("sum_weight", "area_weight"):
             value = getattr(self, name)
@@ -188,7 +190,7 @@ class TrainConfig:
     def networks(self, native_size: int) -> tuple[UNetConfig, PatchConfig | None]:
         """Generator and discriminator configs for data of `native_size` px."""
         n_inputs = n_input_channels(self.inputs)
-        if self.model == "pix2pix":
+        if self.network == "pix2pix":
             return replace(UNetConfig.paper(), in_channels=n_inputs), \
                 PatchConfig(in_channels=n_inputs + len(FIELD_NAMES))
         unet = replace(self.unet or UNetConfig.for_size(native_size), in_channels=n_inputs)
@@ -198,7 +200,7 @@ class TrainConfig:
                            if self.detach_spread else 0)
         elif self.scaling == "standard":
             unet = replace(unet, output="linear")
-        if self.model in ("unet_l1", "unet"):
+        if self.network in ("unet_l1", "unet"):
             return unet, None
         patch = self.patch or PatchConfig(in_channels=unet.in_channels + unet.out_channels)
         return unet, patch
@@ -217,6 +219,7 @@ class TrainConfig:
     @classmethod
     def from_dict(cls, d: dict) -> "TrainConfig":
         return cls(**d)
+
 
 
 @contextmanager

@@ -2,7 +2,8 @@
 flat settings (as the workflow config and the CLI spell them) -> TrainConfig, and the
 `surrogate:` section of the workflow config.
 
-A variant's settings are a flat dict: `model` (one of MODEL_KINDS) plus any of
+A variant's settings are a flat dict: `model` (the network kind, one of
+train.NETWORK_KINDS: TrainConfig.network; the workflow config spells it `model`) plus any of
 SETTING_KEYS. U-Net keys (base, depth, max_width, n_dropout, dropout, upsample, blocks) size
 the generator of "unet_gan"/"unet_l1"/"unet" at the dataset's native resolution; "pix2pix" is
 the paper's fixed 256 px networks and takes no U-Net key. A setting left out takes
@@ -16,8 +17,8 @@ from __future__ import annotations
 import re
 from types import MappingProxyType
 
-from .models import UNetConfig
-from .train import MODEL_KINDS, TrainConfig
+from .networks import UNetConfig
+from .train import NETWORK_KINDS, TrainConfig
 
 UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample", "blocks")
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "betas", "lam", "adversarial_target", "seed",
@@ -87,15 +88,15 @@ def train_config(settings: dict, native_size: int) -> TrainConfig:
     if unknown:
         raise ValueError(f"unknown surrogate setting(s) {unknown}; expected some of {SETTING_KEYS}")
     model = given.get("model")
-    if model not in MODEL_KINDS:
-        raise ValueError(f"surrogate setting model = {model!r} is not one of {MODEL_KINDS}")
+    if model not in NETWORK_KINDS:
+        raise ValueError(f"surrogate setting model = {model!r} is not one of {NETWORK_KINDS}")
     unet_kw = {k: given[k] for k in UNET_KEYS if k in given}
     if model == "pix2pix" and unet_kw:
         raise ValueError(f"surrogate settings {sorted(unet_kw)} size a U-Net, but model "
                          "'pix2pix' is the paper's fixed 256 px network")
     unet = UNetConfig.for_size(native_size, **unet_kw) if model != "pix2pix" else None
     train_kw = {k: given[k] for k in TRAIN_KEYS if k in given}
-    return TrainConfig(model=model, unet=unet, **train_kw)
+    return TrainConfig(network=model, unet=unet, **train_kw)
 
 
 def workflow_variants(config) -> dict[str, dict]:

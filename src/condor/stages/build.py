@@ -13,7 +13,11 @@ The workflow's scripts and the `condor` CLI call these and nothing else:
 5. `finish_dataset`: the store's layout where it was damaged, the expected fields and spread
    of replicated moulds, and the per-sample table; it fails, naming them, when samples are
    missing.
-Figures: `mould_gallery`, `sample_figure`.
+Figures: `write_gallery`, `sample_figure`.
+
+The command line's stages of one mould (`condor mould`, `simulate`, `rasterise`) and of a
+store (`condor check-store`) are at the end: `mould_files`, `simulate_placed`,
+`rasterise_file`, `store_report`.
 """
 
 from __future__ import annotations
@@ -32,13 +36,16 @@ from condor.data import inputs as model_inputs
 from condor import plots
 from condor.config import Config
 from condor.data.fields import cell_fields
-from condor.data.moulds import Mould, generate_mould, input_channels, regime_table, validate_mould
+from condor.moulds.mould import Mould, check_mould, input_channels, save_json
+from condor.moulds.paper import generate_mould, regime_table
 from condor.progress import progress
-from condor.model.scenes import Scene, same_length
+from condor.model.scenes import Scene, get_scene, same_length
 from condor.data.seeds import replica_seed
 from condor.model.simulate import SimResult, simulate, warm_up
-from condor.data.store import (check_store, create_store, inputs_whole, open_store, restore_layout,
-                          sample_index, write_expected, write_inputs, write_sample)
+from condor.data.store_check import (check_metadata, check_store, inputs_whole, restore_layout,
+                                     scan_store, set_aside)
+from condor.data.store import (create_store, open_store, sample_index, write_expected,
+                               write_inputs, write_sample)
 
 log = logging.getLogger("condor")
 
@@ -78,9 +85,8 @@ def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
 def make_mould(scene: Scene, seed: int, mould_id: int, params=None) -> Mould:
     """Mould `mould_id` of dataset `seed` in `scene`, validated (never write invalid geometry)."""
     kwargs = {} if params is None else {"params": params}
-    mould = generate_mould(seed, mould_id, box=scene.box, area_fraction=scene.area_fraction,
-                           max_extent=scene.max_extent, **kwargs)
-    validate_mould(mould)
+    mould = generate_mould(seed, mould_id, scene, **kwargs)
+    check_mould(mould)
     return mould
 
 
@@ -262,7 +268,7 @@ def finish_dataset(store: str | Path, out_csv: str | Path, split=None) -> pd.Dat
     return table
 
 
-def mould_gallery(moulds_jsons, n: int, out_png: str | Path, out_csv: str | Path) -> None:
+def write_gallery(moulds_jsons, n: int, out_png: str | Path, out_csv: str | Path) -> None:
     """The first `n` moulds drawn, and the regime/removal frequencies of all of them."""
     moulds = [m for path in moulds_jsons for m in load_moulds(path)]
     plots.mould_gallery(moulds[:n], out_png)
@@ -279,3 +285,74 @@ def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[in
             for s in ok]
     plots.field_panels(rows, out_png)
     return [int(s) for s in ok]
+
+
+# --- the command line's stages: one mould, one store --------------------------------------------
+
+def mould_files(scene: Scene, seed: int, mould_id: int, params=None, out=None,
+                png=None) -> Mould:
+    """Mould `mould_id` of dataset `seed` in `scene` (make_mould), written as the generator's
+    JSON to `out` and drawn to `png` (each when given)."""
+    mould = make_mould(scene, seed, mould_id, params)
+    if out:
+        save_json(mould, out)
+    if png:
+        plots.mould_picture(mould, png)
+    return mould
+
+
+def simulate_placed(placement, scene: Scene, solver: str | None, budget, seed: int,
+                    out) -> SimResult:
+    """One simulation of a placed mould (condor.moulds.place.Placement), saved to `out` with
+    how it was placed (its scale factor, the units read)."""
+    result = simulate_mould(placement.mould, scene, solver, budget, seed)
+    result.info["placement"] = placement.record()
+    result.save(out)
+    return result
+
+
+def rasterise_file(simulation, scene_name: str | None, out: Path) -> tuple[SimResult, Scene]:
+    """The 8 fields of a saved simulation, on the grid of `scene_name` (default: the scene it
+    records, else "default"), written to `out` (.npy, or a .png picture)."""
+    result = SimResult.load(simulation)
+    if result.status != "ok":
+        raise ValueError(f"{simulation} is a failed simulation ({result.status}); no fields")
+    recorded = result.info.get("scene", {}).get("name")
+    scene = get_scene(scene_name or recorded or "default")
+    fields = rasterise_result(result, scene)
+    if out.suffix == ".npy":
+        np.save(out, fields)
+    else:
+        plots.field_panels([(f"{result.n_cells} cells", None, fields)], out)
+    return result, scene
+
+
+def store_report(store, deep: bool = False, shown: int = 20) -> tuple[list[str], bool]:
+    """What `condor check-store` says of a store (check_metadata, scan_store), and whether it
+    is whole; with `deep`, damaged chunk files are moved aside (set_aside)."""
+    problems = check_metadata(store)
+    check = scan_store(store, deep=deep)
+    table = check.samples
+    counts = table["state"].value_counts()
+    lines = [f"{store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items())]
+    lines += [f"  metadata: {problem}" for problem in problems]
+    for state in ("missing", "pending", "failed", "corrupt"):
+        rows = table[table["state"] == state]
+        if len(rows):
+            more = f" (+{len(rows) - shown} more)" if len(rows) > shown else ""
+            lines.append(f"  {state}: {', '.join(str(s) for s in rows['sample'].head(shown))}{more}")
+            if state == "failed":
+                lines += [f"    {len(group)} x {reason}" for reason, group in rows.groupby("status")]
+    lines += [f"  damaged: {damage}" for damage in check.damage[:shown]]
+    if len(check.damage) > shown:
+        lines.append(f"  damaged: +{len(check.damage) - shown} more chunks")
+    if not check.derived:
+        lines.append("  expected fields (fields_mean, fields_std, n_replicas_ok): not written (the "
+                     "workflow's dataset step derives them)")
+    moved = set_aside(store, check.damage) if deep else None
+    if moved:
+        lines.append(f"  moved the damaged chunk files to {moved}")
+    if check.damage:
+        lines.append("  the next `snakemake` run rebuilds the samples and arrays named above")
+    whole = not (problems or (table["state"] != "ok").any() or check.damage or not check.derived)
+    return lines, whole

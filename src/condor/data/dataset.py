@@ -31,8 +31,9 @@ import xarray as xr
 
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES
-from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, check_store,
-                               open_store, outline_polygon)
+from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store,
+                               outline_polygon)
+from condor.data.store_check import check_store
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
 ITEM_SHAPES = "inputs (2, H, W) float32 0/1; fields (8, H, W) float32"
@@ -166,10 +167,10 @@ def mould_geometry(ds, index: int):
     """The geometry of sample `index`'s mould as it was simulated and rasterised: (a shapely
     Polygon, its outline with any holes; tethers (n, 3) float64: x, y, radius), in l0 in the
     frame of the x and y coordinates (box coordinates: from the box's left and lower edges).
-    Exactly the generator's (condor.data.moulds.generate_mould: `.polygon`, `.tethers`), to
+    Exactly the generator's (condor.moulds.paper.generate_mould: `.polygon`, `.tethers`), to
     the last bit. `ds`: an open dataset or the store's path. Samples 0..n_moulds-1 are
     replica 0 of moulds 0..n_moulds-1, so a mould id is a sample too; every replica holds its
-    mould's geometry. The inputs of it: condor.data.moulds.input_channels(Mould(box=
+    mould's geometry. The inputs of it: condor.moulds.mould.input_channels(Mould(box=
     ds.attrs["scene"]["box"], polygon=polygon, tethers=tethers), pixels)."""
     if not isinstance(ds, xr.Dataset):
         ds = open_dataset(ds)

@@ -29,7 +29,8 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-PREDICTION_MODES = ("eval", "batch_stats", "train")
+from .modes import PREDICTION_MODES
+
 UPSAMPLE_MODES = ("transpose", "resize", "bilinear")
 OUTPUT_ACTIVATIONS = ("tanh", "linear")
 PAPER_SIZE = 256

@@ -9,7 +9,7 @@ import torch
 from torch import nn
 
 from condor.surrogate.samples import resample_fields, resample_masks
-from condor.surrogate.models import (PatchConfig, PatchDiscriminator, TFBatchNorm2d, UNetConfig,
+from condor.surrogate.networks import (PatchConfig, PatchDiscriminator, TFBatchNorm2d, UNetConfig,
                                      UNetGenerator, count_parameters_like_paper, discriminator_loss,
                                      generator_loss, paper_discriminator, paper_generator,
                                      prediction_mode, sigmoid_cross_entropy)
@@ -132,7 +132,7 @@ def test_the_inference_copy_is_the_eval_model_with_batchnorm_folded(upsample, bl
     bilinear resize, which commutes with a per-channel affine map) and drops dropout: in
     channels_last order it gives the eval-mode outputs to float32 round-off, whatever the
     running statistics; the model itself is left as it was."""
-    from condor.surrogate.models import inference_copy
+    from condor.surrogate.networks import inference_copy
 
     torch.manual_seed(5)
     g = UNetGenerator(UNetConfig.for_size(32, base=8, upsample=upsample, blocks=blocks,

@@ -1,0 +1,227 @@
+"""The predict stage (`condor predict`): one mould's fields from a checkpoint, with what a user
+reads beside them.
+
+`predict_mould` places a mould file (JSON, SVG or DXF) in the checkpoint's scene, or reads a
+picture of its input channels; warns where the mould lies outside the training moulds and
+gives the domain verdict measured outside the run (condor.findings' out-of-domain table);
+predicts the fields and their spread; summarises the whole mould's statistics with one
+simulation's predicted spread, calibrated by the spread factors measured outside the run (the
+findings' spread calibration); and writes a CF Zarr store (with every attribute) or a picture.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+
+import pandas as pd
+
+from condor import plots
+from condor.data.store import FORMAT
+from condor.findings import load_findings
+from condor.model.scenes import PRESETS, Scene, same_length
+from condor.moulds.domain import training_domain_check
+from condor.moulds.mould import input_channels
+from condor.moulds.read import load_placement
+from condor.surrogate.modes import DEFAULT_PRECISION
+
+MOULD_FILES = (".json", ".svg", ".dxf")  # a mould itself; anything else is a picture of it
+OUTPUTS = (".zarr", ".png")
+
+
+class PredictError(ValueError):
+    """A prediction that cannot be made or written; the message names the file and why."""
+
+
+@dataclass
+class PredictedMould:
+    """What predict_mould wrote and says: the prediction, the whole-mould statistics (None
+    without a pixel size), the note on their spread's calibration, the domain verdict (a mould
+    file's), and the checkpoint's grid and mode."""
+
+    out: Path
+    prediction: object  # condor.surrogate.predict.Prediction
+    table: pd.DataFrame | None
+    calibrated: str | None
+    verdict: str | None
+    native: int
+    mode: str
+
+    def lines(self) -> list[str]:
+        """What `condor predict` prints when it is done."""
+        from condor.surrogate.answer import format_mould_summary
+
+        lines = [f"{self.out}: 8 fields at {self.native} px, predicted N_c = "
+                 f"{self.prediction.n_cells:.1f} ({self.mode} mode)"]
+        if self.table is not None:
+            lines += ["whole-mould statistics, predicted (+- one simulation's predicted spread):",
+                      format_mould_summary(self.table)]
+            if self.calibrated is not None:
+                lines.append(f"  {self.calibrated}")
+        if self.verdict is not None:
+            lines.append(f"training domain: {self.verdict}")
+        return lines
+
+
+def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=None,
+                  units: str | None = None, device=None, mode: str | None = None,
+                  precision: str = DEFAULT_PRECISION, force: bool = False,
+                  say=print, warn=print) -> PredictedMould:
+    """Predict mould `mould` (a mould file, or its input channels as a .npy or .png) with
+    `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`: how a drawing is
+    read and placed (condor.moulds.read.load_placement); `say(line)`: how it was read;
+    `warn(line)`: each warning. Nothing that exists is replaced without `force`, and never a
+    dataset store or a folder that predict did not write."""
+    from condor.surrogate.predict import Predictor
+
+    out = check_output(out, force)
+    predictor = Predictor(checkpoint, device=device, mode=mode, precision=precision)
+    placement, verdict = None, None
+    if Path(mould).suffix.lower() in MOULD_FILES:
+        scene = checkpoint_scene(predictor)
+        placement = load_placement(mould, scene, l0_um=l0_um, fit=fit, units=units)
+        say(f"{mould}: {placement.describe()}")
+        for warning in training_domain_check(placement.mould, scene):
+            warn(warning)
+        verdict = mould_domain_verdict(placement.mould, scene)
+    inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
+    prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
+    table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn)
+    if out.suffix.lower() == ".png":
+        plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
+                                symmetrised=bool(predictor.symmetrise))
+    else:
+        from condor.surrogate.prediction_zarr import write_prediction
+
+        attrs = store_attributes(checkpoint, mould, predictor.mode, placement, verdict, table,
+                                 calibrated)
+        write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
+                         l0_um=l0_um)
+    return PredictedMould(out, prediction, table, calibrated, verdict, predictor.native,
+                          predictor.mode)
+
+
+def check_output(out, force: bool) -> Path:
+    """`out` as a prediction's path: a .zarr or .png that is not there (or `force`), in a
+    folder that is, and never a dataset store or a folder predict did not write."""
+    out = Path(out)
+    if out.suffix.lower() not in OUTPUTS:
+        raise PredictError(f"--out {str(out)!r} must end in .zarr or .png")
+    refuse_dataset(out)
+    if out.exists() and not force:
+        raise PredictError(f"--out {str(out)!r} exists; pass --force to overwrite it")
+    if out.parent != Path("") and not out.parent.is_dir():
+        raise PredictError(f"--out {str(out)!r}: folder {str(out.parent)!r} does not exist")
+    return out
+
+
+def refuse_dataset(path: Path) -> None:
+    """A prediction is never written over a dataset store, nor over a folder that is not a
+    prediction `predict` wrote (a Zarr store of its attributes), --force or not."""
+    if not path.is_dir():
+        return
+    meta = path / "zarr.json"
+    text = meta.read_text(errors="replace") if meta.is_file() else ""
+    if FORMAT in text:
+        raise PredictError(f"--out {str(path)!r} is a condor dataset store; a prediction never "
+                           "replaces one (choose another path)")
+    try:
+        attributes = json.loads(text).get("attributes", {})
+    except (ValueError, AttributeError):
+        attributes = {}
+    if not {"checkpoint", "n_cells"} <= set(attributes):
+        raise PredictError(f"--out {str(path)!r} is a folder that condor predict did not write; "
+                           "--force replaces only a prediction (choose another path)")
+
+
+def checkpoint_scene(predictor) -> Scene:
+    """The scene a checkpoint was trained on: the preset with its grid (box and pixels), else
+    a scene of its recorded grid and depth (depth NaN when the checkpoint lacks it)."""
+    for scene in PRESETS.values():
+        if scene.pixels == predictor.native and predictor.box is not None and \
+                same_length(scene.box, predictor.box):
+            return scene
+    if predictor.box is None:
+        raise PredictError(f"checkpoint {predictor.path!r} records no pixel size: moulds cannot "
+                           "be placed on its grid (predict takes a (2, H, W) .npy or .png "
+                           "instead)")
+    depth = predictor.depth if predictor.depth is not None else float("nan")
+    return Scene("checkpoint", box=predictor.box, depth=depth, pixels=predictor.native)
+
+
+def mould_domain_verdict(mould, scene: Scene) -> str:
+    """Where `mould` sits against the training moulds, in words, with what was measured
+    outside the run on such moulds (experiments/out_of_domain's table)."""
+    from condor.surrogate.answer import domain_table, domain_verdict
+
+    measured = load_findings()["out_of_domain"]
+    return domain_verdict(domain_table(mould, scene), measured.frame(),
+                      f"{measured.experiment} at {measured.commit}")
+
+
+def mould_inputs(predictor, mould, placement, warn) -> tuple:
+    """(inputs, n_cells, lattice) the network reads: a placed mould's exact ones, or a
+    picture's masks (N_c then estimated, and the lattice channels with a warning)."""
+    from condor.surrogate.answer import MASK_ONLY_MEASURED
+    from condor.surrogate.pictures import read_mould_inputs
+
+    if placement is not None:
+        inputs = input_channels(placement.mould, predictor.native)
+        exact = predictor.mould_arguments([placement.mould])  # N_c and lattice channels
+        n_cells, lattice = exact.get("n_cells"), exact.get("lattice")
+    else:
+        inputs, n_cells = read_mould_inputs(mould, predictor.native, predictor.box), None
+        lattice = None
+    if not inputs.any():
+        raise PredictError(f"{mould} holds no mould pixel: nothing to predict")
+    if predictor.needs_lattice and lattice is None:
+        warn(f"{mould} is a picture: the lattice channels this checkpoint reads are estimated "
+             "from its pixels, which measured much worse than a mould file's geometry: "
+             f"{MASK_ONLY_MEASURED}. Give the mould as JSON, SVG or DXF for the exact channels")
+        lattice = predictor.estimate_lattice(inputs)
+    return inputs, n_cells, lattice
+
+
+def statistics_with_spread(predictor, prediction, inputs, l0_um, warn) -> tuple:
+    """The whole-mould statistics with one simulation's predicted spread (None without the
+    checkpoint's pixel size), and the note on that spread's calibration (None when the
+    checkpoint predicts no spread)."""
+    from condor.design.search import prediction_spread
+    from condor.surrogate.answer import mould_summary, spread_calibration
+    from condor.surrogate.calibration import tissue_pixels
+    from condor.surrogate.checkpoint import weights_sha256
+
+    pixel_size = predictor.pixel_size
+    if pixel_size is None:
+        return None, None
+    spread = prediction_spread(prediction)  # in normalised units, like the fields
+    factors, calibrated = None, None
+    if spread is not None:  # the statistics' spread factors: experiments/spread_calibration
+        calibration = load_findings()["spread_calibration"]
+        factors, calibrated, warning = spread_calibration(
+            calibration.frame(), weights_sha256(predictor.state),
+            f"{calibration.experiment} at {calibration.commit}")
+        if warning is not None:
+            warn(warning)
+    table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size, spread,
+                          tissue=tissue_pixels(inputs[None])[0],
+                          sigma_px=predictor.sigma / pixel_size, l0_um=l0_um, factors=factors)
+    return table, calibrated
+
+
+def store_attributes(checkpoint, mould, mode: str, placement, verdict, table, calibrated) -> dict:
+    """The prediction store's attributes: the checkpoint, the mould, the mode, how the mould
+    was placed, the domain verdict and each whole-mould statistic with its spread."""
+    attrs = {"checkpoint": str(checkpoint), "mould": str(mould), "mode": mode}
+    if placement is not None:
+        attrs.update({k: v for k, v in placement.record().items() if v is not None})
+    if verdict is not None:
+        attrs["training_domain"] = verdict
+    if table is not None and calibrated is not None:
+        attrs["spread_calibration"] = calibrated
+    if table is not None:
+        attrs["statistics"] = {row.statistic: {"value": float(row.value),
+                                               "spread": float(row.spread), "unit": row.unit}
+                               for row in table.itertuples()}
+    return attrs

@@ -1,0 +1,93 @@
+"""A prediction as an xarray Dataset with CF attributes, written as a Zarr store
+(`write_prediction`): the fields raw and normalised, their spread, the inputs, and x/y in mm
+given the cell spacing. (A picture of it: condor.plots.prediction_panels.)"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import xarray as xr
+
+from condor.data.store import quiet_zarr
+
+from .predict import Prediction
+from .samples import FIELD_NAMES
+
+FIELD_LONG_NAMES = {
+    "P": "cell density", "T": "tension", "Sx2": "orientation tensor s_x s_x",
+    "Sy2": "orientation tensor s_y s_y", "Sz2": "orientation tensor s_z s_z",
+    "SxSy": "orientation tensor s_x s_y", "SxSz": "orientation tensor s_x s_z (zero by the "
+    "mould's z-mirror symmetry)", "SySz": "orientation tensor s_y s_z (zero by the mould's "
+    "z-mirror symmetry)"}
+
+
+def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = None) -> dict:
+    """CF coordinates x and y of an n-pixel grid: pixel centres in mm given l0_um (with
+    x_l0, y_l0 beside them), else in l0 (in pixels when pixel_size is None); each with
+    units, long_name, standard_name and axis."""
+    step = 1.0 if pixel_size is None else float(pixel_size)
+    centres = (np.arange(n) + 0.5) * step
+    unit = "pixel" if pixel_size is None else "l0"
+    coords = {}
+    for axis in ("x", "y"):
+        base = {"standard_name": f"projection_{axis}_coordinate", "axis": axis.upper()}
+        if l0_um is not None and pixel_size is not None:
+            coords[axis] = (axis, centres * float(l0_um) / 1000.0,
+                            {**base, "units": "mm", "long_name": f"{axis} of the pixel centre "
+                             f"from the box's {'left' if axis == 'x' else 'lower'} edge "
+                             f"(l0 = {float(l0_um):g} um)"})
+            coords[f"{axis}_l0"] = (axis, centres, {"units": "l0", "long_name": f"{axis} in "
+                                    "cell spacings l0"})
+        else:
+            coords[axis] = (axis, centres, {**base, "units": unit, "long_name": f"{axis} of "
+                            f"the pixel centre from the box's {'left' if axis == 'x' else 'lower'} edge"
+                            + (" (l0: the cells' spacing)" if unit == "l0" else "")})
+    return coords
+
+
+def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
+                       attrs: dict | None = None, l0_um: float | None = None):
+    """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
+    (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); x/y pixel
+    centres (grid_coordinates: in mm given l0_um, else l0; pixels when pixel_size is None),
+    every variable and coordinate with CF `units` and `long_name`."""
+    n = inputs.shape[-1]
+    per_field = {"field_long_names": [FIELD_LONG_NAMES[f] for f in FIELD_NAMES]}
+    variables = {
+        "raw": (("field", "y", "x"), prediction.raw,
+                {"long_name": "predicted expected fields: per pixel, the kernel-weighted sum over "
+                 "cells (P in cells; T in the model's tension units)", "units": "1",
+                 **per_field}),
+        "normalised": (("field", "y", "x"), prediction.normalised,
+                       {"long_name": "predicted expected fields, normalised per cell (raw * "
+                        "N_pixels / N_c)", "units": "1", **per_field}),
+        "inputs": (("channel", "y", "x"), np.asarray(inputs, dtype=np.uint8),
+                   {"long_name": "input masks: mould, tether (0/1)", "units": "1"})}
+    if prediction.spread is not None:
+        variables["spread"] = (("field", "y", "x"), prediction.spread,
+                               {"long_name": "standard deviation of one simulation's field "
+                                "around the expected (raw) field, per pixel", "units": "1",
+                                "description": "standard deviation of one simulation's field "
+                                               "around the expected (raw) field, per pixel"})
+    coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
+              "channel": ("channel", ["mould", "tether"], {"long_name": "input channel"}),
+              **grid_coordinates(n, pixel_size, l0_um)}
+    length_unit = "pixel" if pixel_size is None else ("mm" if l0_um is not None else "l0")
+    return xr.Dataset(
+        variables, coords=coords,
+        attrs={"Conventions": "CF-1.10", "n_cells": float(prediction.n_cells),
+               "length_unit": length_unit, **(attrs or {})})
+
+
+def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
+                     pixel_size: float | None = None, attrs: dict | None = None,
+                     overwrite: bool = False, l0_um: float | None = None) -> None:
+    """Write a prediction as a .zarr store (xarray, see prediction_dataset); an existing one is
+    replaced only with `overwrite`."""
+    path = Path(path)
+    if path.suffix.lower() != ".zarr":
+        raise ValueError(f"prediction store {str(path)!r} must end in .zarr")
+    with quiet_zarr():
+        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um).to_zarr(
+            path, mode="w" if overwrite else "w-")
