@@ -21,7 +21,7 @@ import time
 
 import numpy as np
 
-from condor.design import default_space, parse_objective, search
+from condor.design import default_space, parse_objective, search_designs
 from condor.design.analytic import AnalyticPredictor
 from condor.moulds.mould import input_channels
 from condor.model.scenes import PRESETS, get_scene
@@ -56,7 +56,7 @@ def time_search(objective, space, predictor, budget, repeats):
     rates, cpu_rates, shares = [], [], []
     for seed in range(repeats):
         timed = TimedPredictor(predictor)
-        result = search(objective, space, timed, budget=budget, seed=seed, progress=False)
+        result = search_designs(objective, space, timed, budget=budget, seed=seed, progress=False)
         rates.append(result.designs_per_minute)
         cpu_rates.append(result.designs_per_cpu_minute)
         shares.append(timed.seconds / result.seconds)

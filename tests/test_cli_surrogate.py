@@ -89,6 +89,23 @@ def test_train_writes_checkpoint(trained):
     assert len(state["data"]["fingerprint"]) == 64  # of the data it was trained on
 
 
+def test_a_checkpoint_written_before_network_was_named_so_still_loads(trained, tmp_path):
+    """Checkpoints record TrainConfig; its `model` became `network` (the physics is
+    condor.model): one written with `model` loads with `network`, and predicts."""
+    import torch
+
+    _, checkpoint = trained
+    state = torch.load(checkpoint, weights_only=True)
+    state["config"]["model"] = state["config"].pop("network")
+    old = tmp_path / "old.pt"
+    torch.save(state, old)
+    loaded = load_checkpoint(old)
+    assert loaded["config"]["network"] == "unet_l1" and "model" not in loaded["config"]
+    inputs = np.zeros((2, SIZE, SIZE), np.uint8)
+    inputs[0, 8:24, 8:24] = 1
+    np.testing.assert_array_equal(predict(old, inputs).raw, predict(checkpoint, inputs).raw)
+
+
 def test_train_never_overwrites_and_resumes_only_an_interrupted_run(trained, tmp_path, capsys,
                                                                      monkeypatch):
     store, trained_checkpoint = trained

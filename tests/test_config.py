@@ -33,12 +33,12 @@ OVERLAYS = ["tiny.yaml", "paper.yaml"]
 
 def test_the_default_run_is_the_schemas_defaults():
     """config.yaml shows keys to change, each at the schema's default: the default run (400
-    moulds, 60 test moulds with 4 replicas, the faithful solver, the `unet` preset) is the
-    schema's."""
+    moulds, 100 test moulds with 4 replicas, half the moulds from the lab families, the
+    faithful solver, the `unet` preset) is the schema's."""
     config = Config.load(CONFIG_DIR / "config.yaml")
     assert config == Config.default()
-    assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"]) == \
-        (400, 60, 4)
+    assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"],
+            config.moulds["lab_fraction"]) == (400, 100, 4, 0.5)
     assert config.solver()[0] == "relaxed_anneal"
     assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
 
@@ -165,8 +165,9 @@ def test_tether_free_test_moulds_take_their_own_replicas():
                             moulds={"no_tether_fraction": 0.3},
                             simulation={"replicas": {"test": 4, "test_tether_free": 11}})
     params = config.mould_params()
-    expected = [11 if split == "test" and generate_mould(config.seed, i, config.scene,
-                                                         params).n_tethers == 0
+    sources = config.sources()  # a lab mould always has posts
+    expected = [11 if split == "test" and sources[i] == "paper" and
+                generate_mould(config.seed, i, config.scene, params).n_tethers == 0
                 else config.simulation["replicas"][split]
                 for i, split in enumerate(config.splits())]
     assert list(config.replicas()) == expected and expected.count(11) >= 3
@@ -187,6 +188,58 @@ def test_the_schema_takes_every_variant_setting_the_library_knows():
     config = Config.default(surrogate={"variants": ["t"], "models": {"t": {
         "model": "unet", "head": "physics", "loss": "gaussian", "sum_weight": 1.0}}})
     assert config.surrogate["models"]["t"]["sum_weight"] == 1.0
+
+
+def test_the_schema_s_allowed_values_are_the_code_s():
+    """Every list of allowed values in the schema (scenes, solvers, networks, inputs,
+    upsampling, heads, losses, scalings, loss regions, replica uses, schedules, prediction
+    modes) is the list the code accepts, in the code's order: the code is its home, the schema
+    a copy that this test holds to it."""
+    from condor.data.inputs import INPUT_KINDS
+    from condor.model.scenes import PRESETS
+    from condor.model.simulate import SOLVERS
+    from condor.moulds.lab import FAMILY_NAMES
+    from condor.surrogate.modes import PREDICTION_MODES
+    from condor.surrogate.networks import UPSAMPLE_MODES
+    from condor.surrogate.train import (HEADS, LOSS_REGIONS, LOSSES, LR_SCHEDULES,
+                                        NETWORK_KINDS, REPLICA_USES, SCALINGS)
+
+    schema = load_schema()["properties"]
+    surrogate = schema["surrogate"]["properties"]
+    setting = surrogate["models"]["additionalProperties"]["properties"]
+    expected = {
+        "scene": (schema["scene"]["enum"], tuple(PRESETS)),
+        "simulation/solver": (schema["simulation"]["properties"]["solver"]["enum"],
+                              (*SOLVERS, None)),
+        "surrogate/eval_modes": (surrogate["eval_modes"]["items"]["enum"], PREDICTION_MODES),
+        "model": (setting["model"]["enum"], NETWORK_KINDS),
+        "upsample": (setting["upsample"]["enum"], UPSAMPLE_MODES),
+        "lr_schedule": (setting["lr_schedule"]["enum"], LR_SCHEDULES),
+        "inputs": (setting["inputs"]["enum"], INPUT_KINDS),
+        "prediction_mode": (setting["prediction_mode"]["enum"], PREDICTION_MODES),
+        "head": (setting["head"]["enum"], HEADS),
+        "loss": (setting["loss"]["enum"], LOSSES),
+        "scaling": (setting["scaling"]["enum"], SCALINGS),
+        "loss_region": (setting["loss_region"]["enum"], LOSS_REGIONS),
+        "replicas": (setting["replicas"]["enum"], REPLICA_USES),
+        "moulds/lab_families": (schema["moulds"]["properties"]["lab_families"]["items"]["enum"],
+                                FAMILY_NAMES),
+    }
+    for key, (schema_list, code) in expected.items():
+        assert tuple(schema_list) == tuple(code), key
+    # the stability study may run any solver (its default lists the faithful one first)
+    stability = schema["report"]["properties"]["stability_solvers"]["items"]["enum"]
+    assert sorted(stability) == sorted(SOLVERS)
+    enums = []
+
+    def walk(node):
+        if isinstance(node, dict):
+            enums.extend([node["enum"]] if "enum" in node else [])
+            for value in node.values():
+                walk(value)
+
+    walk(schema)
+    assert len(enums) == len(expected) + 1  # a new list of allowed values joins the table
 
 
 # --- combinations that would fail late (issue 33, items 10 and 11) -----------------------------
@@ -246,7 +299,7 @@ def test_the_design_defaults_have_one_home():
     import inspect
 
     from condor import cli
-    from condor.design import confirm, search
+    from condor.design import confirm_designs, search_designs, simulate_designs
     from condor.stages.design import design
 
     args = cli.build_parser().parse_args(["design", "--objective", "uniformity", "--checkpoint",
@@ -255,6 +308,11 @@ def test_the_design_defaults_have_one_home():
     assert (args.budget, args.top, args.random, args.replicas, args.seed) == tuple(
         schema[k]["default"] for k in ("budget", "top", "random", "replicas", "seed"))
     for function, names in ((design, ("budget", "seed", "n_top", "n_random", "replicas")),
-                            (search, ("budget",)), (confirm, ("n_top", "n_random", "replicas"))):
+                            (search_designs, ("budget",)),
+                            (confirm_designs, ("n_top", "n_random", "replicas"))):
         parameters = inspect.signature(function).parameters
         assert all(parameters[n].default is inspect.Parameter.empty for n in names), function
+    # simulate_designs takes its replicas from its caller, or explicit seeds
+    assert inspect.signature(simulate_designs).parameters["replicas"].default is None
+    with pytest.raises(ValueError, match="needs replicas"):
+        simulate_designs(None, [], None)

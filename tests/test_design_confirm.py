@@ -6,9 +6,9 @@ import pandas as pd
 import pytest
 from scipy.stats import spearmanr
 
-from condor.design import (agreement, baseline_objectives, confirm, dataset_baseline,
+from condor.design import (agreement, baseline_objectives, confirm_designs, dataset_baseline,
                            default_space, design_summary, design_table, parse_objective,
-                           replica_ceiling, replica_seeds, search, select_for_confirmation,
+                           replica_ceiling, replica_seeds, search_designs, select_for_confirmation,
                            simulate_designs, spearman)
 from condor.design.analytic import AnalyticPredictor
 from condor.data.fields import normalise
@@ -111,7 +111,7 @@ def test_design_summary_reports_improvement_over_the_best_baseline():
 def analytic_search():
     objective = parse_objective("alignment:x")
     space = default_space(SCENE, objective, n_tethers=2, symmetry="none")
-    return search(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=120,
+    return search_designs(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=120,
                   seed=0, progress=False)
 
 
@@ -164,10 +164,10 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     assert (predictor.native, predictor.box) == (SCENE.pixels, SCENE.box)
     objective = parse_objective("alignment:x", pixels=predictor.native)
     space = default_space(SCENE, objective, n_tethers=2)
-    result = search(objective, space, predictor, budget=40, popsize=8, seed=0, progress=False)
+    result = search_designs(objective, space, predictor, budget=40, popsize=8, seed=0, progress=False)
     assert len(result.designs) == 40 and np.isfinite(result.designs["objective"]).all()
     baseline = pd.DataFrame({"mould_id": [0], "objective": [0.0]})
-    confirmation = confirm(result, SCENE, n_top=1, n_random=2, replicas=1, baseline=baseline,
+    confirmation = confirm_designs(result, SCENE, n_top=1, n_random=2, replicas=1, baseline=baseline,
                            solver="minimise", budget=50, progress=False)
     table, summary = confirmation.table, confirmation.summary.iloc[0]
     assert table["role"].tolist() == ["top", "random", "random"]
@@ -183,7 +183,7 @@ def test_the_whole_loop_with_a_real_predictor_on_the_tiny_scene(tmp_path):
     assert listed_only["simulated_objective"].isna().all()
     assert design_table(result, n=2)["role"].tolist() == ["ranked", "ranked"]
     with pytest.raises(ValueError, match="scene 'default'"):
-        confirm(result, get_scene("default"), n_top=1, n_random=0, replicas=1)
+        confirm_designs(result, get_scene("default"), n_top=1, n_random=0, replicas=1)
 
 
 def test_confirmation_figure_is_written(tmp_path):

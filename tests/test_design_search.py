@@ -6,7 +6,7 @@ import pytest
 from condor.design.analytic import AnalyticPredictor, raster_order
 from condor.design.objectives import EmptyRegionError, parse_objective
 from condor.design.search import (DesignSearchError, objective_spread, predict_designs,
-                                  prediction_spread, search)
+                                  prediction_spread, search_designs)
 from condor.design.space import DesignSpace, default_space
 from condor.moulds.mould import input_channels
 from condor.model.scenes import get_scene
@@ -19,7 +19,7 @@ def alignment_search():
     objective = parse_objective("alignment:x")
     space = default_space(SCENE, objective, n_tethers=2, symmetry="none")
     predictor = AnalyticPredictor(SCENE.pixels, SCENE.box)
-    return objective, space, predictor, search(objective, space, predictor, budget=480, seed=3,
+    return objective, space, predictor, search_designs(objective, space, predictor, budget=480, seed=3,
                                                progress=False)
 
 
@@ -58,14 +58,14 @@ def test_search_is_deterministic_for_a_seed_and_leaves_numpy_global_state_alone(
     objective = parse_objective("alignment:x")
     space = default_space(SCENE, objective, n_tethers=2)
     predictor = AnalyticPredictor(SCENE.pixels, SCENE.box)
-    first = search(objective, space, predictor, budget=60, popsize=8, seed=3, progress=False)
+    first = search_designs(objective, space, predictor, budget=60, popsize=8, seed=3, progress=False)
     np.random.seed(123)
     before = np.random.get_state()[1].copy()
-    again = search(objective, space, predictor, budget=60, popsize=8, seed=3, progress=False)
+    again = search_designs(objective, space, predictor, budget=60, popsize=8, seed=3, progress=False)
     assert np.array_equal(np.random.get_state()[1], before)
     assert np.array_equal(again.vectors, first.vectors)
     assert again.designs.equals(first.designs)
-    other = search(objective, space, predictor, budget=60, popsize=8, seed=4, progress=False)
+    other = search_designs(objective, space, predictor, budget=60, popsize=8, seed=4, progress=False)
     assert not np.array_equal(other.vectors, first.vectors)
 
 
@@ -80,7 +80,7 @@ def test_ranked_designs_are_distinct_and_sorted(alignment_search):
 def test_a_constraint_keeps_the_best_design_feasible():
     objective = parse_objective("alignment:x; alignment:x<0.3")
     space = default_space(SCENE, objective, n_tethers=1)
-    result = search(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=160,
+    result = search_designs(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=160,
                     seed=0, progress=False)
     best = result.designs.iloc[0]
     assert best["feasible"] and 0.2 < best["objective"] <= 0.3
@@ -90,11 +90,11 @@ def test_bad_setups_fail_before_any_prediction():
     predictor = AnalyticPredictor(SCENE.pixels, SCENE.box)
     space = DesignSpace.from_scene(SCENE)
     with pytest.raises(EmptyRegionError):
-        search(parse_objective("uniformity@rect(0,0.04,0,1)"), space, predictor, budget=10)
+        search_designs(parse_objective("uniformity@rect(0,0.04,0,1)"), space, predictor, budget=10)
     with pytest.raises(DesignSearchError, match="31.25 l0 box"):
-        search(parse_objective("uniformity"), space, AnalyticPredictor(64, 31.25), budget=10)
+        search_designs(parse_objective("uniformity"), space, AnalyticPredictor(64, 31.25), budget=10)
     with pytest.raises(DesignSearchError, match="budget"):
-        search(parse_objective("uniformity"), space, predictor, budget=1)
+        search_designs(parse_objective("uniformity"), space, predictor, budget=1)
     assert predictor.calls == 0
 
 
@@ -102,9 +102,9 @@ def test_progress_bar_only_when_asked(capsys):
     objective = parse_objective("uniformity")
     space = DesignSpace.from_scene(SCENE, n_tethers=1)
     predictor = AnalyticPredictor(SCENE.pixels, SCENE.box)
-    search(objective, space, predictor, budget=20, popsize=8, progress=False)
+    search_designs(objective, space, predictor, budget=20, popsize=8, progress=False)
     assert capsys.readouterr().err == ""
-    search(objective, space, predictor, budget=20, popsize=8, progress=True)
+    search_designs(objective, space, predictor, budget=20, popsize=8, progress=True)
     assert "design uniformity" in capsys.readouterr().err
 
 
@@ -163,10 +163,10 @@ def test_prediction_spread_prefers_a_normalised_map():
 def test_the_search_reports_a_spread_only_when_the_surrogate_has_a_map():
     objective = parse_objective("alignment:x")
     space = DesignSpace.from_scene(SCENE, n_tethers=1)
-    plain = search(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=20,
+    plain = search_designs(objective, space, AnalyticPredictor(SCENE.pixels, SCENE.box), budget=20,
                    popsize=8, progress=False)
     assert "predicted_spread" not in plain.designs
-    spread = search(objective, space, SpreadPredictor(SCENE.pixels, SCENE.box, level=0.05),
+    spread = search_designs(objective, space, SpreadPredictor(SCENE.pixels, SCENE.box, level=0.05),
                     budget=20, popsize=8, progress=False)
     assert (spread.designs["predicted_spread"] > 0).all()
     assert np.allclose(spread.designs.sort_values("design")["objective"],

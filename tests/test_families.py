@@ -11,7 +11,7 @@ from condor.moulds.lab import lab_mould
 from condor.stages.build import simulate_mould
 from condor.stages.check import CHECK_SEED, check_prediction
 from condor.studies.families import family_rows, mean_tension
-from condor.studies.reference import Ensemble
+from condor.studies.recipes import Ensemble
 from condor.surrogate.answer import statistics
 
 

@@ -13,7 +13,7 @@ from condor.moulds.mould import PAPER, Mould, check_mould, load_json, save_json
 
 @pytest.mark.parametrize("family", FAMILY_NAMES)
 def test_every_family_draws_valid_moulds_within_its_ranges(family):
-    """40 moulds a family at the default box: the mould contract (validate_mould: inside the
+    """40 moulds a family at the default box: the mould contract (check_mould: inside the
     box, posts inside and apart, room for cells), the area and extent rules, the posts'
     clearance and radii, each measured on the geometry itself."""
     box = 31.25

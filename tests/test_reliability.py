@@ -23,7 +23,7 @@ from test_workflow import REPO, TINY, run, snakemake_args
 pytestmark = pytest.mark.slow
 
 # The tiny scene, cut down, for runs of their own: 8 moulds in 4 batches, 2 test moulds of 4
-# replicas (the fewest the studies take: condor.studies.reference.MIN_REPLICAS).
+# replicas (the fewest the studies take: condor.studies.recipes.MIN_REPLICAS).
 SMALL = {"n_moulds": 8, "batch_size": 2, "split": {"test": 2},
          "simulation": {"replicas": {"test": 4}}}
 

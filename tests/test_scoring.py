@@ -4,13 +4,12 @@ surrogate studies (experiments/surrogate) share."""
 from __future__ import annotations
 
 import numpy as np
-import pandas as pd
 import pytest
 import xarray as xr
 
 from condor.studies import scoring
 from condor.data.dataset import usable_samples
-from condor.studies.reference import Ensemble
+from condor.studies.recipes import Ensemble
 
 
 def test_paired_ratio_is_the_root_of_the_mean_ratio_and_pairing_narrows_it():
@@ -121,4 +120,3 @@ def test_statistics_of_keeps_the_leading_shape():
     stats = scoring.statistics_of(fields, 0.5)
     assert stats.shape == (3, 2, len(STATISTICS))
     assert np.allclose(stats[1, 0], scoring.statistics_of(fields[1, 0], 0.5))
-    assert isinstance(pd.DataFrame(stats[0], columns=STATISTICS), pd.DataFrame)

@@ -10,6 +10,7 @@ from condor.model.scenes import get_scene
 from condor.moulds.lab import FAMILY_NAMES
 from condor.moulds.mould import PAPER
 from condor.moulds.sources import assign_sources, make_mould
+from condor.studies.paper_reference import reference_moulds
 
 
 def _splits(n_train, n_val, n_test, seed=0):
@@ -59,9 +60,7 @@ def test_the_config_refuses_mixtures_it_cannot_make_naming_the_key():
                          ({"moulds": {"lab_area": [0.5, 0.6]}}, "moulds/lab_area"),
                          ({"moulds": {"lab_area": [0.4, 0.3]}}, "moulds/lab_area"),
                          ({"moulds": {"lab_families": ["star"]}}, "moulds/lab_families"),
-                         ({"moulds": {"lab_fraction": 1.5}}, "moulds/lab_fraction"),
-                         ({"split": {"test": 10, "lab_test": 5}, "report": {"moulds": 6}},
-                          "report/moulds")]:
+                         ({"moulds": {"lab_fraction": 1.5}}, "moulds/lab_fraction")]:
         with pytest.raises(ConfigError, match=f"config key {key}"):
             Config.default(**changes)
 
@@ -71,7 +70,9 @@ def test_lab_test_moulds_take_the_test_replicas_and_define_the_data():
     sources, splits, replicas = config.sources(), config.splits(), config.replicas()
     lab_tests = [i for i, (s, src) in enumerate(zip(splits, sources))
                  if s == "test" and src != PAPER]
-    assert len(lab_tests) == config.split["lab_test"]
+    free = [i for i in config.test_moulds() if i not in reference_moulds("default", config.seed)]
+    assert config.split["lab_test"] is None  # the default: lab_fraction of the free ones
+    assert len(lab_tests) == round(config.moulds["lab_fraction"] * len(free))
     assert {replicas[i] for i in lab_tests} == {config.simulation["replicas"]["test"]}
     assert config.test_moulds("lab") == lab_tests
     assert set(config.test_moulds("paper")) | set(lab_tests) == set(config.test_moulds())

@@ -12,7 +12,6 @@ import re
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import numpy as np
@@ -163,46 +162,87 @@ def store_chunks(workdir, arrays=("fields", "inputs", "lattice")):
             if p.is_file()}
 
 
+# A job of a run started with it in PYTHONPATH kills its whole process group (Snakemake and
+# its jobs, as a SIGKILL of the run would) at a point the test names, in the run's own code
+# path: CONDOR_TEST_KILL = "simulation:N" (once the run's Nth simulation is saved),
+# "sample:N" (once its Nth sample is written into the store) or "fields_job:N" (when the run's
+# Nth fields job starts writing, before it writes); the run's processes count in
+# CONDOR_TEST_KILL_COUNTER. No poll and no race: the kill lands exactly there.
+KILL_HOOK = """
+import os
+import signal
+
+_spec = os.environ.get("CONDOR_TEST_KILL")
+if _spec:
+    _point, _nth = _spec.split(":")
+
+    def _reached():
+        with open(os.environ["CONDOR_TEST_KILL_COUNTER"], "a+") as counter:
+            counter.write(f"{os.getpid()}\\n")
+            counter.seek(0)
+            return len(counter.read().split()) >= int(_nth)
+
+    def _kill():
+        os.killpg(os.getpgrp(), signal.SIGKILL)
+
+    if _point == "simulation":
+        from condor.model.simulate import SimResult
+
+        _save = SimResult.save
+
+        def _saved(self, path):
+            _save(self, path)
+            if _reached():
+                _kill()
+
+        SimResult.save = _saved
+    else:
+        import condor.data.store as _store
+
+        _write, _started = _store.write_sample, []
+
+        def _written(*args, **kwargs):
+            if _point == "fields_job" and not _started:
+                _started.append(True)
+                if _reached():
+                    _kill()
+            result = _write(*args, **kwargs)
+            if _point == "sample" and _reached():
+                _kill()
+            return result
+
+        _store.write_sample = _written
+"""
+
+
+def killed_run(workdir, point: str, *extra) -> subprocess.CompletedProcess:
+    """A run whose jobs SIGKILL it at `point` (KILL_HOOK); AssertionError if it ends first."""
+    hook = workdir / "kill_hook" / point.replace(":", "_")
+    hook.mkdir(parents=True)
+    (hook / "sitecustomize.py").write_text(KILL_HOOK)
+    env = {**os.environ, "CONDOR_TEST_KILL": point,
+           "CONDOR_TEST_KILL_COUNTER": str(hook / "counter"),
+           "PYTHONPATH": os.pathsep.join(filter(None, [str(hook), os.environ.get("PYTHONPATH")]))}
+    proc = subprocess.run(snakemake_args(workdir, *extra, cores=1), capture_output=True,
+                          text=True, env=env, start_new_session=True)
+    assert proc.returncode == -signal.SIGKILL, \
+        f"the run was not killed at {point} ({proc.returncode}):\n{proc.stderr[-3000:]}"
+    return proc
+
+
 def test_kill_and_resume_gives_the_uninterrupted_store(request, tmp_path):
-    """SIGKILL the dataset stage at three points: part-way through a batch's simulations,
-    part-way through a batch's writes into the store, and just after a batch finished. The
-    rerun completes every sample, leaves the batches that had finished untouched, and gives
-    the same store, chunk for chunk, as the uninterrupted run of the same config (`tiny_run`,
-    built in another folder)."""
+    """SIGKILL the dataset stage at three points: part-way through a batch's simulations (the
+    run's first simulation saved), part-way through a batch's writes into the store (its first
+    sample written), and just after a batch finished (as the run's second fields job starts).
+    The rerun completes every sample, leaves the batches that had finished untouched, and
+    gives the same store, chunk for chunk, as the uninterrupted run of the same config
+    (`tiny_run`, built in another folder)."""
     extra = (*TINY, "--until", "dataset")
     results = tmp_path / "results"
-    n_batches = 4  # tiny.yaml: 16 moulds, 4 a batch; mould 4k opens batch k (sample 4k)
-
-    def running(prefix):
-        """Batches whose `prefix` output (sims, fields) a running job has not finished."""
-        return {int(p.split("batch_")[1][:4]) for p in incomplete_outputs(tmp_path)
-                if p.startswith(f"results/{prefix}/batch_")}
-
-    def finished_batches():
-        return {m.name for m in (results / "fields").glob("*.json")} - {
-            Path(p).name for p in incomplete_outputs(tmp_path) if p.startswith("results/fields/")}
-
-    def mid_simulate():  # a simulate job has saved a simulation, and has more to do
-        return any(list((results / "sims" / f"batch_{b:04d}").glob("*.npz")) for b in running("sims"))
-
-    def mid_fields():  # a fields job has written its batch's first sample into the store
-        return any((store_of(tmp_path) / "status" / "c" / str(4 * b)).exists()
-                   for b in running("fields"))
-
-    def one_more_finished(count):
-        return lambda: len(finished_batches()) > count
-
+    n_batches = 4  # tiny.yaml: 16 moulds, 4 a batch
     finished_before: dict[str, int] = {}
-    for kill, when in enumerate(("mid-simulate", "mid-fields", "after a batch")):
-        proc = subprocess.Popen(snakemake_args(tmp_path, *extra, cores=1), stdout=subprocess.DEVNULL,
-                                stderr=subprocess.DEVNULL, start_new_session=True)
-        point = {"mid-simulate": mid_simulate, "mid-fields": mid_fields,
-                 "after a batch": one_more_finished(len(finished_before))}[when]
-        while proc.poll() is None and not point():
-            time.sleep(0.02)
-        os.killpg(proc.pid, signal.SIGKILL)
-        proc.wait()
-        assert proc.returncode == -signal.SIGKILL, f"the run ended before the kill {when}"
+    for point in ("simulation:1", "sample:1", "fields_job:2"):
+        killed_run(tmp_path, point, *extra)
         in_flight = {Path(p).name for p in incomplete_outputs(tmp_path) if "/fields/" in p}
         for marker in (results / "fields").glob("*.json"):
             # A job killed after writing its output but before Snakemake recorded it as

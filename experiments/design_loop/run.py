@@ -18,8 +18,8 @@ from pathlib import Path
 
 import xarray as xr
 
-from condor.design import (confirm, dataset_baseline, default_space, design_table,
-                           parse_objective, search)
+from condor.design import (confirm_designs, dataset_baseline, default_space, design_table,
+                           parse_objective, search_designs)
 from condor.model.scenes import PRESETS
 from condor.surrogate.predict import Predictor
 
@@ -47,14 +47,14 @@ def main():
     objective = parse_objective(args.objective, pixels=predictor.native,
                                 max_extent=scene.max_extent)
     space = default_space(scene, objective)
-    result = search(objective, space, predictor, budget=args.budget, seed=args.seed)
+    result = search_designs(objective, space, predictor, budget=args.budget, seed=args.seed)
     print(f"scene {scene.name}, objective {objective.label}, space {space.symmetry} "
           f"(dim {space.dim}), seed {args.seed}: {result.evaluations} designs in "
           f"{result.seconds:.0f} s wall, {result.cpu_seconds:.0f} s CPU "
           f"({result.designs_per_cpu_minute:,.0f} per CPU minute)")
     baseline = dataset_baseline(objective, xr.open_zarr(args.store), split="test")
     start, cpu = time.perf_counter(), time.process_time()
-    confirmation = confirm(result, scene, n_top=args.n_top, n_random=args.n_random,
+    confirmation = confirm_designs(result, scene, n_top=args.n_top, n_random=args.n_random,
                            replicas=args.replicas, baseline=baseline)
     print(f"confirmation: {len(confirmation.simulated.replicas)} simulations in "
           f"{time.perf_counter() - start:.0f} s wall, {time.process_time() - cpu:.0f} s CPU")

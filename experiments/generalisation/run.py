@@ -46,7 +46,7 @@ from condor.measures import estimators as est  # noqa: E402
 from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.moulds.mould import PAPER  # noqa: E402
 from condor.studies.families import family_rows, mean_tension  # noqa: E402
-from condor.studies.reference import reference_ensemble  # noqa: E402
+from condor.studies.recipes import reference_ensemble  # noqa: E402
 from condor.studies.scoring import predict_replica_moulds  # noqa: E402
 from condor.surrogate.train import train as train_loop  # noqa: E402
 from condor.surrogate.variants import train_config, workflow_variants  # noqa: E402

@@ -4,7 +4,7 @@ of workers at once (each claims a run with a lock file), one thread each, niced.
   python experiments/paper_reference/run.py --scene default --moulds 468 302 27 128 553 143 \
       392 557 --rungs 1e5 1e6 --runs 3
 
-Each finished run is added to the shipped product (src/condor/reference/, tables.pack) at
+Each finished run is added to the shipped product (src/condor/paper_reference/, tables.pack) at
 once, and kept as a SimResult file in the cache; a running one keeps its anneal checkpoint
 beside it, every 5 minutes (`condor.studies.paper_reference`). Kill a worker at any time;
 start it again to resume. The cache defaults to experiments/paper_reference/cache/, whose
@@ -63,7 +63,7 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--product", type=Path, default=None,
                     help="pack finished runs into this folder instead of the shipped product "
-                         "(src/condor/reference): a study's own reference")
+                         "(src/condor/paper_reference): a study's own reference")
     a = ap.parse_args(argv)
     os.nice(10)
     scene = get_scene(a.scene)

@@ -4,12 +4,12 @@
       --rungs 1e5 1e6 [--pack]
 
 Writes experiments/paper_reference/ladder_<scene>.csv from the shipped data product
-(src/condor/reference/): for each rung below the top, its distance to
+(src/condor/paper_reference/): for each rung below the top, its distance to
 the next rung up (noise-corrected, RMS over the 8 normalised fields, bootstrap over moulds),
 the replica noise of the upper rung, the cell-averaged orientations and energies, and
 whether the pair is unresolved by the bar (upper 95% bound <= 0.5 x the noise). Only moulds
 with >= 2 finished runs at both rungs count. --pack first adds the run cache's finished runs
-to src/condor/reference/ (one .npz per mould, every run of every rung, each with its commit and
+to src/condor/paper_reference/ (one .npz per mould, every run of every rung, each with its commit and
 kernel); run.py does this itself as each run finishes.
 """
 

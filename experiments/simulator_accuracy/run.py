@@ -28,7 +28,7 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.stages.build import make_mould, simulate_mould  # noqa: E402
-from condor.studies import accuracy, reference, sweep  # noqa: E402
+from condor.studies import accuracy, recipes, sweep  # noqa: E402
 
 OUT = Path("results/benchmarks")
 
@@ -69,7 +69,7 @@ def main():
             parts = list(pool.map(one_mould, tasks))
     else:
         parts = [one_mould(t) for t in tasks]
-    ensemble = reference.Ensemble(
+    ensemble = recipes.Ensemble(
         moulds=np.arange(a.moulds), raw=np.stack([p[0] for p in parts]),
         n_cells=np.array([float(p[3]) for p in parts]),
         inputs=np.zeros((a.moulds, 2, scene.pixels, scene.pixels), np.uint8),

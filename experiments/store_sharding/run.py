@@ -111,7 +111,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     n = args.moulds
     spec = StoreSpec(n_moulds=n, pixels=args.pixels, seed=0, split=("train",) * n, attrs={})
-    arrays = _expected_arrays(spec)
+    arrays = expected_arrays(spec)
     pool = synthetic(np.random.default_rng(0), 16, args.pixels, arrays["fields"][0][1])
     args.out.mkdir(parents=True, exist_ok=True)
     rows = []

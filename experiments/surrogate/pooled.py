@@ -40,7 +40,7 @@ from condor.measures import estimators as est
 from condor.data.fields import STATISTICS
 from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
-from condor.studies.reference import reference_ensemble
+from condor.studies.recipes import reference_ensemble
 from condor.studies.scoring import (first_training_moulds, paired_ratio, pooled_ensemble,
                                     with_training_moulds)
 from condor.surrogate.checkpoint import load_checkpoint

@@ -23,7 +23,7 @@ import pandas as pd  # noqa: E402
 
 from condor.data.store import open_store  # noqa: E402
 from condor.studies import accuracy  # noqa: E402
-from condor.studies.reference import reference_ensemble  # noqa: E402
+from condor.studies.recipes import reference_ensemble  # noqa: E402
 from condor.surrogate.predict import Predictor  # noqa: E402
 from condor.surrogate.train import train  # noqa: E402
 from condor.surrogate.variants import train_config  # noqa: E402

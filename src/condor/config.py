@@ -36,7 +36,7 @@ from condor.model.scenes import Scene, get_scene
 from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
 from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
-from condor.studies.reference import MIN_REPLICAS
+from condor.studies.recipes import MIN_REPLICAS
 
 TEST_SETS = ("paper", "lab")  # the test moulds of the generator, and of the lab families
 
@@ -286,12 +286,6 @@ class Config:
             self.sources()
         except ValueError as err:
             raise ConfigError(f"config key split/lab_test: {err}") from err
-        n_paper = len(self.test_moulds("paper"))
-        if self.report["moulds"] > n_paper:
-            raise ConfigError(
-                f"config key report/moulds: {self.report['moulds']} test moulds asked of the "
-                f"accuracy study, but the paper test set holds {n_paper} (split/test "
-                f"{self.split['test']} less split/lab_test {self.split['lab_test']})")
         try:
             check_area_range(self.moulds["lab_area"], self.lab_families(), self.scene.max_extent)
         except ValueError as err:
@@ -303,7 +297,7 @@ class Config:
                     f"config key simulation/replicas/{name}: {counts[name]} is too few; the "
                     "accuracy study and the anneal ladder measure against the mean of "
                     f"{MIN_REPLICAS} or more replicas a test mould "
-                    "(condor.studies.reference.MIN_REPLICAS)")
+                    "(condor.studies.recipes.MIN_REPLICAS)")
         if check_surrogate:
             self._check_surrogate()
         scene = self.scene

@@ -1,1 +1,2 @@
-"""The data: moulds (generated and drawn), seeds, fields, inputs, the Zarr store and its reader (docs/architecture.md)."""
+"""The data: seeds, fields, the lattice and stress inputs, the Zarr store, its check and its
+reader (docs/architecture.md). The moulds are the floor below (condor.moulds)."""

@@ -537,8 +537,9 @@ def write_inputs(path: str | Path, mould: int, inputs: np.ndarray, mould_meta: d
         for i in samples:
             group["inputs"][i] = inputs.astype("uint8")
             group["lattice"][i] = np.asarray(lattice, dtype="float32")
-            for name in MOULD_VARIABLES:
-                group[name][i] = mould_meta[name]
+            for name in MOULD_VARIABLES:  # a writer from before families gives none
+                group[name][i] = mould_meta.get(name, "") if name == "family" else \
+                    mould_meta[name]
             for name in GEOMETRY_ARRAYS:
                 group[name][i] = geometry[name]
             group["inputs_ready"][i] = 1

@@ -137,19 +137,23 @@ def _simulate_one(task):
     return fields, result.n_cells, result.status, result.seconds
 
 
-def simulate_designs(objective: Objective, moulds: list[Mould], scene, replicas: int = 3,
-                     seed: int = 0, seeds: list[list[int]] | None = None,
+def simulate_designs(objective: Objective, moulds: list[Mould], scene,
+                     replicas: int | None = None, seed: int = 0,
+                     seeds: list[list[int]] | None = None,
                      solver: str | None = None, budget: float | None = None, map_fn=map,
                      progress: bool | None = None) -> SimulatedDesigns:
     """Simulate every mould `replicas` times and score the replica-mean normalised fields.
 
-    seeds: explicit simulation seeds per mould (a list of lists); default
-        replica_seeds(seed, mould.mould_id, replicas).
+    replicas: simulations a mould (the caller's: the workflow config's design/replicas is
+        their one home), or seeds: explicit simulation seeds per mould (a list of lists;
+        default replica_seeds(seed, mould.mould_id, replicas)).
     map_fn: how to run the replicas, e.g. a concurrent.futures executor's `map` (default:
         serially). progress: a tqdm bar on stderr; None = when stderr is a terminal.
     """
     moulds = list(moulds)
     if seeds is None:
+        if replicas is None:
+            raise ValueError("simulate_designs needs replicas (or explicit seeds)")
         seeds = [replica_seeds(seed, m.mould_id, replicas) for m in moulds]
     elif len(seeds) != len(moulds):
         raise ValueError(f"seeds has {len(seeds)} lists for {len(moulds)} moulds")
@@ -346,7 +350,7 @@ class Confirmation:
     simulated: SimulatedDesigns
 
 
-def confirm(result: SearchResult, scene, n_top: int, n_random: int,
+def confirm_designs(result: SearchResult, scene, n_top: int, n_random: int,
             replicas: int, baseline: pd.DataFrame | None = None,
             solver: str | None = None, budget: float | None = None, seed: int | None = None,
             map_fn=map, progress: bool | None = None) -> Confirmation:

@@ -91,7 +91,7 @@ class InfeasibleConstraintError(ObjectiveError):
 
 
 @dataclass(frozen=True)
-class Region:
+class ObjectiveRegion:
     """A part of the box: ("rect", x0, x1, y0, y1) or ("disc", cx, cy, r), box fractions."""
 
     shape: tuple
@@ -124,7 +124,7 @@ class Region:
         return self.contains(x, y)
 
 
-EVERYWHERE = Region(REGIONS["all"], "all")
+EVERYWHERE = ObjectiveRegion(REGIONS["all"], "all")
 
 
 @dataclass(frozen=True)
@@ -134,7 +134,7 @@ class Quantity:
 
     name: str
     angle: float | None = None
-    region: Region = EVERYWHERE
+    region: ObjectiveRegion = EVERYWHERE
 
     @property
     def label(self) -> str:
@@ -389,7 +389,7 @@ class _Parser:
             return value if unit[1].lower() == "rad" else math.radians(value)
         return math.radians(value)
 
-    def region(self) -> Region:
+    def region(self) -> ObjectiveRegion:
         name = self.take(kind="name", what="a region")[1].lower()
         if name in ("rect", "disc"):
             count = 4 if name == "rect" else 3
@@ -403,7 +403,7 @@ class _Parser:
         if name not in REGIONS:
             raise self.error(f"unknown region {name!r}; choose one of {sorted(REGIONS)}, "
                              "rect(x0,x1,y0,y1) or disc(cx,cy,r) in box fractions")
-        return Region(REGIONS[name], name)
+        return ObjectiveRegion(REGIONS[name], name)
 
     def expression(self) -> list[tuple[float, Quantity]]:
         terms = []
@@ -439,9 +439,9 @@ class _Parser:
         return Constraint(q, op, bound)
 
 
-def _checked_region(shape: tuple, parser: _Parser) -> Region:
+def _checked_region(shape: tuple, parser: _Parser) -> ObjectiveRegion:
     kind, *v = shape
-    region = Region(tuple([kind, *map(float, v)]))
+    region = ObjectiveRegion(tuple([kind, *map(float, v)]))
     if kind == "rect" and not (v[0] < v[1] and v[2] < v[3]):
         raise parser.error(f"region {region.label} is empty: it needs x0 < x1 and y0 < y1",
                            EmptyRegionError)

@@ -214,7 +214,7 @@ def _to_minimise(scores: np.ndarray) -> list[float]:
     return [float(-s) if np.isfinite(s) else float(-worst) for s in scores]
 
 
-def search(objective: Objective, space: DesignSpace, predictor, budget: int,
+def search_designs(objective: Objective, space: DesignSpace, predictor, budget: int,
            seed: int = 0, popsize: int | None = None, sigma0: float = 0.5,
            n_init: int | None = None, penalty: float = 10.0, repair_weight: float = 0.05,
            progress: bool | None = None) -> SearchResult:

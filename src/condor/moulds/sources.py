@@ -19,12 +19,13 @@ from condor.moulds.paper import MouldParams, generate_mould, is_tether_free
 SOURCE_STREAM = 0x1AB  # default_rng([seed, SOURCE_STREAM]): which moulds are lab moulds
 
 
-def assign_sources(splits, lab_fraction: float, lab_test: int, families, seed: int,
+def assign_sources(splits, lab_fraction: float, lab_test: int | None, families, seed: int,
                    pinned=()) -> tuple[str, ...]:
     """The source of every mould (PAPER or a lab family), from its split (`splits`, one label
-    a mould): `lab_test` of the test moulds and round(lab_fraction x n) of the n moulds of
-    each other split are lab moulds, chosen by a seeded permutation; the `pinned` moulds (those
-    with a paper reference) are always the generator's. Lab moulds take the families in turn,
+    a mould): `lab_test` of the test moulds (None: round(lab_fraction x n) of the n test moulds
+    that are not pinned) and round(lab_fraction x n) of the n moulds of each other split are lab
+    moulds, chosen by a seeded permutation; the `pinned` moulds (those with a paper reference)
+    are always the generator's. Lab moulds take the families in turn,
     from a seeded start, so each family has the same share of a split to within one mould.
     ValueError when the test split has too few free moulds for `lab_test`."""
     families = tuple(families)
@@ -33,7 +34,7 @@ def assign_sources(splits, lab_fraction: float, lab_test: int, families, seed: i
         raise ValueError(f"unknown lab families {unknown}; choose among {FAMILY_NAMES}")
     if not 0.0 <= lab_fraction <= 1.0:
         raise ValueError(f"lab_fraction must be in [0, 1], got {lab_fraction}")
-    if (lab_fraction > 0 or lab_test > 0) and not families:
+    if (lab_fraction > 0 or (lab_test or 0) > 0) and not families:
         raise ValueError("lab moulds were asked for, but no lab family is chosen")
     n = len(splits)
     rng = np.random.default_rng([int(seed), SOURCE_STREAM])
@@ -43,7 +44,8 @@ def assign_sources(splits, lab_fraction: float, lab_test: int, families, seed: i
     for split in ("test", "val", "train"):
         members = [int(i) for i in order if splits[i] == split]
         free = [i for i in members if i not in pinned]
-        count = int(lab_test) if split == "test" else int(round(lab_fraction * len(members)))
+        count = (int(round(lab_fraction * len(free if split == "test" else members)))
+                 if split != "test" or lab_test is None else int(lab_test))
         if count > len(free):
             raise ValueError(f"{count} lab moulds asked of the {len(members)} {split} moulds, "
                              f"of which {len(free)} are free (the others hold a paper "

@@ -148,7 +148,7 @@ def fidelity_verdict(fidelity: pd.DataFrame) -> str:
     and the L-BFGS quench beside it."""
     if fidelity.empty:
         return ("Fidelity to the paper's CONDOR: not measured, the product holds no reference "
-                "anneals of this scene and seed (src/condor/reference).")
+                "anneals of this scene and seed (src/condor/paper_reference).")
     words = []
     for i, row in enumerate(fidelity.itertuples()):
         ratio = row.distance_hi / row.replica_noise

@@ -31,9 +31,9 @@ import pandas as pd
 import xarray as xr
 
 from condor import plots
-from condor.design import (confirm, constrained_space, dataset_baseline, default_space,
+from condor.design import (confirm_designs, constrained_space, dataset_baseline, default_space,
                            design_table,
-                           parse_objective, predict_designs, search, simulate_designs)
+                           parse_objective, predict_designs, search_designs, simulate_designs)
 from condor.design.search import calibrated_statistic
 from condor.moulds.write import write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
@@ -179,7 +179,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
         table.to_csv(out / "your_moulds.csv", index=False)
     constraint = f", keeping your mould's {' and '.join(keep)}" if keep else ""
     say(f"phase 2/4: searching {budget} designs with the surrogate{constraint}")
-    result = search(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
+    result = search_designs(parsed, space, predictor, budget=budget, seed=seed, progress=progress)
     if "predicted_spread" in result.designs:
         result.designs["predicted_spread"] *= spread_factor
     log.info("search: %d designs, %.0f per CPU-minute; best predicted %s = %.4g",
@@ -188,7 +188,7 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     baseline = dataset_baseline(parsed, open_store(store), split="test") if store else None
     say(f"phase 3/4: confirming the best {n_top} and {n_random} random designs by "
         f"simulation, {replicas} replica(s) each")
-    confirmation = confirm(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
+    confirmation = confirm_designs(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
                            baseline=baseline, solver=solver, progress=progress)
     table = design_table(result, confirmation, n=max(n_top, 10))
     table.to_csv(out / "designs.csv", index=False)

@@ -34,7 +34,7 @@ from condor.studies.fidelity import fidelity_table, paper_ensemble, prediction_r
 from condor.studies.paper_reference import mould_of
 from condor.studies.ladder import ladder as ladder_study
 from condor.studies.families import FAMILY_COLUMNS, family_rows
-from condor.studies.reference import reference_ensemble
+from condor.studies.recipes import reference_ensemble
 from condor.studies.sweep import run_methods, study_methods
 from condor.surrogate.baselines import fit_baselines
 from condor.surrogate.samples import dataset_pixel_size, usable_samples
@@ -45,8 +45,14 @@ log = logging.getLogger("condor")
 
 def study_moulds(config: Config) -> list[int]:
     """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
-    of the paper test set (the generator's moulds, as the paper reference's)."""
-    return config.test_moulds("paper")[: config.report["moulds"]]
+    of the paper test set (the generator's moulds, as the paper reference's); fewer, said in
+    the log, when the paper test set holds fewer."""
+    paper = config.test_moulds("paper")
+    if config.report["moulds"] > len(paper):
+        log.warning("report.moulds is %d, but the paper test set holds %d moulds: the accuracy "
+                    "study sweeps those %d (raise split.test, or lower split.lab_test)",
+                    config.report["moulds"], len(paper), len(paper))
+    return paper[: config.report["moulds"]]
 
 
 def mould_by_id(moulds_jsons, mould_id: int):

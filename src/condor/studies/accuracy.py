@@ -1,6 +1,6 @@
 """Every method scored against the expected organisation of the same test moulds.
 
-The truth is the reference ensemble (`reference.reference_ensemble`: the dataset's replicas
+The truth is the reference ensemble (`recipes.reference_ensemble`: the dataset's replicas
 of each test mould). For each method (simulations of `sweep`, surrogates, baselines, and the
 dataset solver's own "single simulation" and "mean of k simulations") this module returns:
 
@@ -201,7 +201,7 @@ def score(predictions, dataset, method: str = "predictions", simulated: bool = F
     solver's own rows ("single simulation" is the noise ceiling); statistics rows: per
     whole-mould statistic, r against the expected statistic with r_lo/r_hi, r_ceiling, bias
     with bias_lo/bias_hi (columns as STATISTICS_COLUMNS)."""
-    from condor.studies.reference import reference_ensemble
+    from condor.studies.recipes import reference_ensemble
 
     if isinstance(predictions, dict):
         wanted = [int(m) for m in predictions]

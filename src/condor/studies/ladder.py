@@ -1,7 +1,7 @@
 """The anneal ladder: does the dataset's fast solver sample the paper's ensemble?
 
 "CONDOR" means the paper's anneal (1e6 moves per cell). On a few test moulds each rung of
-the ladder (an anneal budget, then tight relaxation: `reference.anneal_then_relax`) is run with
+the ladder (an anneal budget, then tight relaxation: `recipes.anneal_then_relax`) is run with
 several seeds: an ensemble. Each rung's expected fields are compared with the dataset
 solver's (the store's replicas of the same moulds) by the noise-corrected distance between
 ensemble means (condor.measures.estimators.ensemble_distance), beside the scatter of one simulation
@@ -18,7 +18,7 @@ from condor.measures import estimators as est
 from condor.data.fields import cell_fields, normalise
 from condor.progress import progress
 from condor.data.seeds import study_seed
-from condor.studies.reference import anneal_then_relax
+from condor.studies.recipes import anneal_then_relax
 
 
 def ladder(ensemble, moulds, scene, budgets, n_seeds: int, dataset_seed: int, log=None

@@ -1,6 +1,6 @@
 """The paper's CONDOR as a reference ensemble: long anneals of test moulds, run resumably.
 
-A reference run is `reference.anneal_then_relax` (the paper's anneal of `budget` moves per
+A reference run is `recipes.anneal_then_relax` (the paper's anneal of `budget` moves per
 cell, then L-BFGS to a tight force) of one mould with one seed. Its seed is the study stream
 `study_seed(dataset_seed, mould, REFERENCE_RUN + k)` for run k, shared by every budget (run k of
 each rung starts from the same orientations) and used by no replica of the dataset.
@@ -25,7 +25,7 @@ from condor.moulds.paper import generate_mould
 from condor.model.scenes import Scene
 from condor.data.seeds import study_seed
 from condor.model.simulate import SimResult
-from condor.studies.reference import anneal_then_relax
+from condor.studies.recipes import anneal_then_relax
 
 REFERENCE_RUN = 5000  # study-stream offset of the reference runs (`condor.data.seeds.study_seed`)
 
@@ -86,7 +86,7 @@ def scene_fields(state, scene: Scene) -> np.ndarray:
 # anneal kernel, the code commit, the seeds) as JSON. Fields are recomputed from the states
 # at any grid, so the product scores a solver at whatever resolution its store holds.
 
-REFERENCE_DIR = Path(__file__).resolve().parent.parent / "reference"
+REFERENCE_DIR = Path(__file__).resolve().parent.parent / "paper_reference"
 POS_QUANTUM = 2.0e-3  # l0: positions up to 65 l0 fit an int16; 1e-3 l0 RMS is far below sigma
 _ORI_SCALE = 32767.0
 

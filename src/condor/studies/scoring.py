@@ -70,7 +70,7 @@ def paired_rows(names, errors, field_names=None) -> pd.DataFrame:
 
 
 def pooled_ensemble(ensembles):
-    """One Ensemble (condor.studies.reference) of every ensemble's moulds, renumbered 0..M-1;
+    """One Ensemble (condor.studies.recipes) of every ensemble's moulds, renumbered 0..M-1;
     the per-replica arrays NaN-padded to the most replicas any of them holds."""
     parts = list(ensembles)
     if not parts:

@@ -1,7 +1,7 @@
 """Simulation methods run on one mould: the answers the accuracy study scores.
 
 A method is a solver with its budget and force tolerance: the long anneal (the paper's
-algorithm at the longest budget affordable, then tight relaxation: `reference.anneal_then_relax`),
+algorithm at the longest budget affordable, then tight relaxation: `recipes.anneal_then_relax`),
 short anneals that stop unconverged, the minimiser, and the converged hybrid (ftol 1e-4). Each
 runs once per mould with a study seed (`condor.data.seeds.study_seed`), independent of the
 dataset's replicas, which are the truth it is scored against. The dataset's own solver needs
@@ -18,7 +18,7 @@ from condor.data.fields import cell_fields
 from condor.progress import progress
 from condor.data.seeds import study_seed
 from condor.model.simulate import SimResult, simulate
-from condor.studies.reference import anneal_then_relax
+from condor.studies.recipes import anneal_then_relax
 
 CONVERGED_FTOL = 1.0e-4  # the hybrid "converged" rung (kappa0 l0)
 
