@@ -60,11 +60,12 @@ def scores_of(predictor: Predictor, ds, ids, cache: Path, tag: str) -> dict:
     pos = [position[int(m)] for m in ids]
     masks = model_inputs(ds, pos, "mask")
     lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
-    x = novelty.network_inputs(predictor, masks, lattice)
-    feats = novelty.features(predictor, x)
+    x = novelty.network_inputs(predictor.inputs_kind, masks, lattice)
+    feats = novelty.features(predictor.model, predictor.inputs_kind, x)
     tissue = masks.max(axis=1) > 0
     n_cells = np.asarray(ds["n_cells"].values)[pos]
-    dis = novelty.disagreement(predictor, x, n_cells, tissue)
+    dis = novelty.disagreement(predictor.model, predictor.scaling, predictor.inputs_kind, x,
+                               n_cells, tissue)
     out = {"features": feats, "disagreement": dis, "descriptors": geometry_descriptors(ds, ids)}
     np.savez(path, **out)
     return out

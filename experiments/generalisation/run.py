@@ -119,8 +119,8 @@ def models(ds, lab_share_lofo: float) -> dict[str, dict]:
 def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int) -> Path:
     held = None if spec["held_out"] == "none" else spec["held_out"]
     train_ids = choose(ds, "train", N_TRAIN, spec["lab_share"], held)
-    n_val = len(first_replicas(ds, "val"))
-    val_ids = choose(ds, "val", n_val - (n_val // 20 if held else 0), spec["lab_share"], held)
+    val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
+    val_ids = [int(i) for i in val if families_of(ds)[i] != held]  # pool's but the held family
     key = hashlib.sha256(json.dumps([train_ids, val_ids, settings], sort_keys=True)
                          .encode()).hexdigest()[:12]
     path = cache / f"{name}_{key}.pt"

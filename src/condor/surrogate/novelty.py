@@ -35,29 +35,29 @@ DESCRIPTORS = ("area", "perimeter_ratio", "extent", "aspect", "n_posts", "post_r
                "hole_area")
 
 
-def network_inputs(predictor, masks: np.ndarray, lattice=None) -> np.ndarray:
-    """The network's input channels (S, C, H, W) at the native grid for masks (S, 2, H, W),
-    as `Predictor.__call__` assembles them (lattice given when the network reads it)."""
+def network_inputs(inputs_kind: str, masks: np.ndarray, lattice=None) -> np.ndarray:
+    """The network's input channels (S, C, H, W) at the native grid for masks (S, 2, H, W), as
+    a network of `inputs_kind` reads them (lattice given when it reads the lattice)."""
     by_variable = {"inputs": masks, "lattice": lattice}
     for name in ("stress", "stress_tensor"):
-        if name in INPUT_VARIABLES[predictor.inputs_kind]:
+        if name in INPUT_VARIABLES[inputs_kind]:
             by_variable[name] = stress_channels(masks, name == "stress_tensor")
     return np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
-                           for name in INPUT_VARIABLES[predictor.inputs_kind]], axis=1)
+                           for name in INPUT_VARIABLES[inputs_kind]], axis=1)
 
 
-def _moved(predictor, x: np.ndarray) -> list[torch.Tensor]:
-    size = predictor.model.cfg.size
-    x = resample_inputs(np.asarray(x, dtype=np.float32), size, predictor.inputs_kind)
-    t = torch.from_numpy(np.ascontiguousarray(x))
-    return [apply_symmetry(k, inputs=t, input_kind=predictor.inputs_kind)[0]
-            for k in range(PLANAR)]
+def _moved(model, inputs_kind: str, x: np.ndarray) -> list[torch.Tensor]:
+    x = resample_inputs(np.asarray(x, dtype=np.float32), model.cfg.size, inputs_kind)
+    t = torch.from_numpy(np.ascontiguousarray(x)).to(next(model.parameters()).device)
+    return [apply_symmetry(k, inputs=t, input_kind=inputs_kind)[0] for k in range(PLANAR)]
 
 
-def features(predictor, x: np.ndarray, batch_size: int = 4) -> np.ndarray:
-    """(S, C) bottleneck vectors of network inputs x (S, C_in, H, W) (`network_inputs`): the
-    deepest encoder block's output averaged over its grid and the 8 planar transforms."""
-    model = predictor.model.eval()
+def features(model, inputs_kind: str, x: np.ndarray, batch_size: int = 4) -> np.ndarray:
+    """(S, C) bottleneck vectors of network inputs x (S, C_in, H, W) (`network_inputs`) of the
+    U-Net `model`: its deepest encoder block's output averaged over its grid and the 8 planar
+    transforms."""
+    was_training = model.training
+    model.eval()
     captured = []
     hook = model.down[-1].register_forward_hook(
         lambda module, args, out: captured.append(out.float().mean(dim=(-2, -1))))
@@ -66,27 +66,29 @@ def features(predictor, x: np.ndarray, batch_size: int = 4) -> np.ndarray:
         with torch.inference_mode():
             for start in range(0, len(x), batch_size):
                 captured.clear()
-                moved = _moved(predictor, x[start:start + batch_size])
+                moved = _moved(model, inputs_kind, x[start:start + batch_size])
                 run_network(model, torch.cat(moved))
                 vectors = captured[0].reshape(PLANAR, -1, captured[0].shape[-1])
-                out.append(vectors.mean(dim=0).numpy())
+                out.append(vectors.mean(dim=0).cpu().numpy())
     finally:
         hook.remove()
+        model.train(was_training)
     return np.concatenate(out).astype(np.float64)
 
 
-def disagreement(predictor, x: np.ndarray, n_cells, tissue: np.ndarray) -> np.ndarray:
+def disagreement(model, scaling, inputs_kind: str, x: np.ndarray, n_cells,
+                 tissue: np.ndarray) -> np.ndarray:
     """(S,) the 8 planar transforms' disagreement (module docs) for network inputs x (S, C, H,
     W), N_c per mould, and each mould's tissue pixels (S, H, W) at the model's grid size."""
-    model = predictor.model.eval()
+    model = model.eval()
     n_cells = np.asarray(n_cells, dtype=np.float64).reshape(-1)
     out = np.empty(len(x))
     with torch.inference_mode():
         for i in range(len(x)):
-            moved = _moved(predictor, x[i:i + 1])
+            moved = _moved(model, inputs_kind, x[i:i + 1])
             back = []
             for k, m in enumerate(moved):
-                y, _ = decode(predictor.scaling, run_network(model, m).contiguous().double(),
+                y, _ = decode(scaling, run_network(model, m).contiguous().double(),
                               n_cells[i:i + 1].astype(np.float32))
                 back.append(apply_symmetry(k, fields=y.cpu().numpy(), inverse=True)[1][0])
             back = np.stack(back)  # (8, 8, H, W)
@@ -151,3 +153,27 @@ def knn_distance(bank: np.ndarray, query: np.ndarray, k: int = K_NEAREST,
 
     typical = float(np.median(nearest(b, True)))
     return nearest(q, False) / max(typical, 1e-12)
+
+
+def training_bank(model, inputs_kind: str, dataset, positions) -> dict:
+    """What a checkpoint keeps of its training moulds to score a new one (`condor.surrogate.
+    train` stores it when training ends): their feature vectors (float16, (N, C)) and, when
+    the store holds the moulds' geometry, their descriptors ((N, len(DESCRIPTORS))), as
+    tensors (a checkpoint loads with torch's weights_only)."""
+    from condor.data.dataset import mould_geometry
+    from condor.data.store import StoreError
+    from condor.moulds.mould import Mould
+
+    from .samples import model_inputs
+
+    positions = np.asarray(positions)
+    x = model_inputs(dataset, positions, inputs_kind)
+    bank = {"features": torch.from_numpy(features(model, inputs_kind, x).astype(np.float16))}
+    try:
+        box = float(dataset.attrs["scene"]["box"])
+        rows = [descriptors(Mould(box=box, polygon=p, tethers=t))
+                for p, t in (mould_geometry(dataset, int(i)) for i in positions)]
+        bank["descriptors"] = torch.from_numpy(np.array(rows, dtype=np.float64))
+    except (StoreError, KeyError, ValueError, TypeError):  # a store without the geometry
+        pass
+    return bank

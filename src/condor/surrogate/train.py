@@ -36,6 +36,7 @@ from .networks import (PatchConfig, PatchDiscriminator, UNetConfig,
                      UNetGenerator, discriminator_loss, generator_loss)
 from .physics import PhysicsHead, check_field_weights, fit_physics_head, tissue_mask
 from .inference import default_device
+from .novelty import training_bank
 from .predict import run_model
 
 NETWORK_KINDS = ("pix2pix", "unet_gan", "unet_l1", "unet")
@@ -457,13 +458,16 @@ def train(dataset, cfg: TrainConfig, checkpoint_path, device=None, log=print,
                                                cfg.symmetrise) if validate else None
             record["seconds"] = time.perf_counter() - t0
             history.append(record)
+            # what predict measures a new mould's novelty against (condor.surrogate.novelty)
+            bank = training_bank(G, cfg.inputs, dataset, train_idx) if last and isinstance(
+                G, UNetGenerator) else None
             save_checkpoint({
                 "config": cfg.to_dict(), "generator_config": G.cfg.to_dict(),
                 "patch_config": D.cfg.to_dict() if D is not None else None,
                 "generator": G.state_dict(), "discriminator": D.state_dict() if D else None,
                 "opt_g": opt_g.state_dict(), "opt_d": opt_d.state_dict() if D else None,
                 "epoch": epoch + 1, "scaling": scaling.to_dict(), "history": history,
-                "data": data}, path)
+                "data": data, **({"novelty": bank} if bank is not None else {})}, path)
             log(_format_record(record, cfg.epochs))
     return history
 
