@@ -4,6 +4,8 @@ AREA_REFUSE). Simulation needs no such check: the model holds for any mould."""
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from condor.model.scenes import Scene, same_length
@@ -25,43 +27,73 @@ class OutsideTrainingDomainError(InvalidMouldError):
     """A mould too far from the generated moulds for a surrogate's prediction to mean much."""
 
 
-def training_domain_check(mould: Mould, scene: Scene) -> list[str]:
-    """Warnings for predicting `mould` with a surrogate trained on `scene`'s generated moulds.
+@dataclass(frozen=True)
+class TrainingRanges:
+    """The ranges of a surrogate's training moulds, in box sides: area (a fraction of the box),
+    the larger side, the posts (counts) and their radii; `source` names whose they are."""
 
-    Generated moulds all have area exactly scene.area_fraction of the box, width and
-    height at most scene.max_extent of it, 0 or at least TRAINING_MIN_TETHERS tethers, and
-    tether radii within TRAINING_TETHER_RADIUS box sides. A mould whose area differs from
-    the training area by more than AREA_WARN (relative) gets a warning; by more than
-    AREA_REFUSE, OutsideTrainingDomainError (simulate it instead). Extent, tether count and
-    radii outside the training ranges, and tethers too small to mark any pixel of the input
-    grid, get warnings. Simulation needs no such check: the model holds for any mould.
+    area: tuple[float, float]
+    extent: float
+    posts: tuple[int, int]
+    post_radius: tuple[float, float]
+    source: str
+
+
+def generated_ranges(scene: Scene) -> TrainingRanges:
+    """The paper generator's moulds: area exactly scene.area_fraction, at most scene.max_extent
+    wide, 0 or at least TRAINING_MIN_TETHERS tethers of radii TRAINING_TETHER_RADIUS."""
+    return TrainingRanges((scene.area_fraction, scene.area_fraction), scene.max_extent,
+                          (TRAINING_MIN_TETHERS, 10**6), TRAINING_TETHER_RADIUS,
+                          "the generated moulds")
+
+
+def training_domain_check(mould: Mould, scene: Scene,
+                          ranges: TrainingRanges | None = None) -> list[str]:
+    """Warnings for predicting `mould` with a surrogate trained on moulds of `ranges` in
+    `scene` (None: the paper generator's, `generated_ranges`).
+
+    A mould whose area lies outside the training areas by more than AREA_WARN (relative) gets
+    a warning; by more than AREA_REFUSE, OutsideTrainingDomainError (simulate it instead). A
+    larger extent, a tether count or radii outside the training ranges, and tethers too small
+    to mark any pixel of the input grid, get warnings. Simulation needs no such check: the
+    model holds for any mould. The generated moulds' count rule is "0 or at least
+    TRAINING_MIN_TETHERS"; a checkpoint's own ranges count its training moulds' posts.
     """
     box = float(scene.box)
     if not same_length(mould.box, box):
         raise OutsideTrainingDomainError(
             f"the mould is placed in a {mould.box:g} l0 box, the {scene.name!r} scene (and a "
             f"surrogate trained on it) has {box:g} l0")
+    generated = ranges is None
+    ranges = generated_ranges(scene) if generated else ranges
     warnings = []
     fraction = mould.polygon.area / box**2
-    deviation = fraction / scene.area_fraction - 1
-    area = (f"its area is {fraction:.3g} of the box, the training moulds' is exactly "
-            f"{scene.area_fraction:g} ({deviation:+.0%})")
+    low, high = ranges.area
+    nearest = min(max(fraction, low), high)
+    deviation = fraction / nearest - 1
+    training = (f"exactly {low:g}" if low == high else f"{low:.3g}-{high:.3g}")
+    area = (f"its area is {fraction:.3g} of the box, {ranges.source}' is {training} "
+            f"({deviation:+.0%})")
     if abs(deviation) > AREA_REFUSE:
         raise OutsideTrainingDomainError(
             f"{area}, beyond the +-{AREA_REFUSE:.0%} a prediction is allowed: simulate it, or "
             "scale it with --fit")
-    if abs(deviation) > AREA_WARN:
-        warnings.append(f"{area}: the prediction extrapolates (more than +-{AREA_WARN:.0%})")
+    if abs(deviation) > (AREA_WARN if generated else 1e-9):
+        warnings.append(f"{area}: the prediction extrapolates" +
+                        (f" (more than +-{AREA_WARN:.0%})" if generated else ""))
     xmin, ymin, xmax, ymax = mould.polygon.bounds
     extent = max(xmax - xmin, ymax - ymin) / box
-    if extent > scene.max_extent * (1 + 1e-9):
-        warnings.append(f"its width or height is {extent:.3g} of the box, the training moulds' "
-                        f"is at most {scene.max_extent:g}")
+    if extent > ranges.extent * (1 + 1e-9):
+        warnings.append(f"its width or height is {extent:.3g} of the box, {ranges.source}' "
+                        f"is at most {ranges.extent:.3g}")
     tethers = np.asarray(mould.tethers, dtype=float).reshape(-1, 3)
-    if 0 < len(tethers) < TRAINING_MIN_TETHERS:
+    if generated and 0 < len(tethers) < TRAINING_MIN_TETHERS:
         warnings.append(f"it has {len(tethers)} tethers, the training moulds have none or at "
                         f"least {TRAINING_MIN_TETHERS}")
-    low, high = (r * box for r in TRAINING_TETHER_RADIUS)
+    elif not generated and not ranges.posts[0] <= len(tethers) <= ranges.posts[1]:
+        warnings.append(f"it has {len(tethers)} tethers, {ranges.source} have "
+                        f"{ranges.posts[0]}-{ranges.posts[1]}")
+    low, high = (r * box for r in ranges.post_radius)
     odd = [i for i, r in enumerate(tethers[:, 2]) if not low <= r <= high]
     if odd:
         warnings.append(f"tether radii {listing(tethers[odd, 2])} l0 (tethers {listing(odd)}) "

@@ -15,6 +15,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
 import pandas as pd
 
 from condor import plots
@@ -80,20 +81,26 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
     that predict did not write."""
     from condor.surrogate.predict import Predictor
 
+    from condor.surrogate.novelty import bank_of, training_ranges
+
     out = check_output(out, force)
     predictor = Predictor(checkpoint, device=device, mode=mode, precision=precision)
-    placement, verdict = None, None
+    bank = bank_of(predictor.state)  # None: a checkpoint trained before novelty was kept
+    placement, verdict, novelty = None, None, None
     if Path(mould).suffix.lower() in MOULD_FILES:
         scene = checkpoint_scene(predictor)
         placement = load_placement(mould, scene, l0_um=l0_um, fit=fit, units=units)
         say(f"{mould}: {placement.describe()}")
-        for warning in training_domain_check(placement.mould, scene):
+        for warning in training_domain_check(placement.mould, scene, training_ranges(bank)):
             warn(warning)
-        verdict = mould_domain_verdict(placement.mould, scene)
+        if bank is None:
+            verdict = mould_domain_verdict(placement.mould, scene)
     if check and placement is None:
         raise PredictError(f"--check simulates the mould, which needs its geometry: give "
                            f"{mould} as a JSON, SVG or DXF mould file, not a picture")
     inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
+    if bank is not None:
+        verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
     table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn)
     if out.suffix.lower() == ".png":
@@ -104,6 +111,8 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
 
         attrs = store_attributes(checkpoint, mould, predictor.mode, placement, verdict, table,
                                  calibrated)
+        if novelty is not None:
+            attrs["novelty"] = novelty
         write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
                          l0_um=l0_um)
     checked = None
@@ -173,6 +182,24 @@ def mould_domain_verdict(mould, scene: Scene) -> str:
     measured = load_findings()["out_of_domain"]
     return domain_verdict(domain_table(mould, scene), measured.frame(),
                       f"{measured.experiment} at {measured.commit}")
+
+
+def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, dict]:
+    """How new the mould is to the checkpoint (condor.surrogate.novelty: its features' distance
+    to the training moulds'), and what was measured on moulds that new: the verdict's two
+    lines and its numbers (condor.findings' "novelty", experiments/generalisation)."""
+    from condor.surrogate.novelty import mould_novelty, network_inputs, novelty_verdict
+
+    x = network_inputs(predictor.inputs_kind, np.asarray(inputs)[None],
+                       None if lattice is None else np.asarray(lattice).reshape(
+                           (1,) + np.shape(inputs)))
+    score = float(mould_novelty(predictor.model, predictor.inputs_kind, bank, x)[0])
+    finding = load_findings().get("novelty")
+    if finding is None:  # a package without the calibration
+        return (f"novelty {score:.2f} (1 is typical of its training moulds; not calibrated)",
+                {"novelty": score})
+    return novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
+                           f"{finding.experiment} at {finding.commit}")
 
 
 def mould_inputs(predictor, mould, placement, warn) -> tuple:

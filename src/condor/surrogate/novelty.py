@@ -20,6 +20,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import pandas as pd
 import shapely
 import torch
 
@@ -177,3 +178,68 @@ def training_bank(model, inputs_kind: str, dataset, positions) -> dict:
     except (StoreError, KeyError, ValueError, TypeError):  # a store without the geometry
         pass
     return bank
+
+
+# --- what condor predict says of a mould ------------------------------------------------------
+
+# The calibration of the novelty score (condor.findings' "novelty" table, fitted by
+# experiments/generalisation/novelty.py on the held-out families): per score bin, the measured
+# error over one simulation's scatter (median and 10-90% range) and the share above 1.
+CALIBRATION_COLUMNS = ("score_lo", "score_hi", "n_moulds", "ratio_median", "ratio_lo",
+                       "ratio_hi", "share_above_ceiling")
+
+
+def bank_of(state: dict) -> dict | None:
+    """The training bank a checkpoint carries (training_bank), as numpy; None for a checkpoint
+    trained before it."""
+    bank = state.get("novelty")
+    if not bank or "features" not in bank:
+        return None
+    return {k: np.asarray(v.float().numpy() if hasattr(v, "numpy") else v, dtype=np.float64)
+            for k, v in bank.items()}
+
+
+def training_ranges(bank: dict):
+    """The checkpoint's training moulds' ranges (condor.moulds.domain.TrainingRanges) from its
+    bank's descriptors; None without them."""
+    from condor.moulds.domain import TrainingRanges
+
+    d = bank.get("descriptors") if bank else None
+    if d is None or not len(d):
+        return None
+    col = {name: d[:, i] for i, name in enumerate(DESCRIPTORS)}
+    radii = np.concatenate([col["post_radius_min"][col["n_posts"] > 0],
+                            col["post_radius_max"][col["n_posts"] > 0]])
+    return TrainingRanges(area=(float(col["area"].min()), float(col["area"].max())),
+                          extent=float(col["extent"].max()),
+                          posts=(int(col["n_posts"].min()), int(col["n_posts"].max())),
+                          post_radius=(float(radii.min()), float(radii.max())) if len(radii)
+                          else (0.0, 0.0),
+                          source=f"its {len(d)} training moulds")
+
+
+def mould_novelty(model, inputs_kind: str, bank: dict, x: np.ndarray) -> np.ndarray:
+    """(S,) feature distance (module docs) of network inputs x (S, C, H, W) to the bank."""
+    return knn_distance(bank["features"], features(model, inputs_kind, x))
+
+
+def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
+                    provenance: str) -> tuple[str, dict]:
+    """Two short lines on a mould's novelty `score`: inside or outside (above `threshold`),
+    and the error measured on moulds of that novelty (the bin of `calibration` it falls in);
+    and the numbers, for the prediction's attributes."""
+    rows = calibration.sort_values("score_lo").reset_index(drop=True)
+    k = int(np.clip(np.searchsorted(rows["score_hi"].to_numpy(), score), 0, len(rows) - 1))
+    row = rows.iloc[k]
+    outside = score > threshold
+    state = ("OUTSIDE what it learnt: check it by simulation (--check 4)" if outside else
+             "inside what it learnt")
+    numbers = {"novelty": float(score), "threshold": float(threshold), "outside": bool(outside),
+               "expected_error_ratio": float(row.ratio_median),
+               "expected_error_ratio_lo": float(row.ratio_lo),
+               "expected_error_ratio_hi": float(row.ratio_hi)}
+    text = (f"novelty {score:.2f} (1 is typical of its training moulds, flagged above "
+            f"{threshold:.2g}): {state}\n  moulds this new lay {row.ratio_median:.2g}x "
+            f"[{row.ratio_lo:.2g}, {row.ratio_hi:.2g}] one simulation's scatter from their "
+            f"expected fields, {row.share_above_ceiling:.0%} above it ({provenance})")
+    return text, numbers
