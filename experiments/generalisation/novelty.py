@@ -128,9 +128,49 @@ def main(argv=None) -> int:
         for score in ("feature_distance", "disagreement", "descriptor_distance"):
             summary.append({"scope": scope, "score": score,
                             **flagging(frame[score].to_numpy(), frame["bad"].to_numpy())})
-    pd.DataFrame(summary).to_csv(a.out / "novelty.csv", index=False)
-    print(pd.DataFrame(summary).to_string(index=False))
+    summary = pd.DataFrame(summary)
+    summary.to_csv(a.out / "novelty.csv", index=False)
+    print(summary.to_string(index=False))
+    lofo = table[table["held_out"] != "none"]
+    chosen = summary[summary["scope"] == "leave-one-out models"].sort_values(
+        "auroc", ascending=False).iloc[0]["score"]
+    calibration, threshold, rates = calibrate(lofo, chosen)
+    calibration.to_csv(a.out / "novelty_calibration.csv", index=False)
+    print(f"chosen score {chosen}: threshold {threshold:.3g}: {rates}")
+    print(calibration.to_string(index=False))
     return 0
+
+
+def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
+    """The product's calibration of `score` (condor.surrogate.novelty.CALIBRATION_COLUMNS): per
+    quantile bin of the score, the error over one simulation's scatter (median, 10-90%) and the
+    share above 1; and the threshold that catches at least 90% of the moulds above it with the
+    fewest false alarms (else the best balance of the two), with its rates."""
+    values = frame[score].to_numpy()
+    ratio = np.sqrt(np.maximum(frame["squared_error"], 0) / frame["noise"]).to_numpy()
+    bad = frame["bad"].to_numpy()
+    edges = np.quantile(values, np.linspace(0, 1, bins + 1))
+    edges[0], edges[-1] = -np.inf, np.inf
+    rows = []
+    for lo, hi in zip(edges[:-1], edges[1:]):
+        inside = (values > lo) & (values <= hi)
+        r = ratio[inside]
+        rows.append({"score_lo": lo, "score_hi": hi, "n_moulds": int(inside.sum()),
+                     "ratio_median": float(np.median(r)), "ratio_lo": float(np.quantile(r, 0.1)),
+                     "ratio_hi": float(np.quantile(r, 0.9)),
+                     "share_above_ceiling": float(bad[inside].mean())})
+    candidates = np.unique(values)
+    best = None
+    for t in candidates:
+        caught = float((values[bad] > t).mean()) if bad.any() else 1.0
+        alarms = float((values[~bad] > t).mean()) if (~bad).any() else 0.0
+        key = (caught >= 0.9, -alarms if caught >= 0.9 else caught - alarms)
+        if best is None or key > best[0]:
+            best = (key, t, caught, alarms)
+    _, threshold, caught, alarms = best
+    return (pd.DataFrame(rows), float(threshold),
+            {"caught": caught, "false_alarms": alarms, "n_bad": int(bad.sum()),
+             "n_good": int((~bad).sum())})
 
 
 if __name__ == "__main__":
