@@ -41,6 +41,8 @@ def test_descriptors_of_a_known_mould():
     assert d["post_spacing"] == pytest.approx(0.6)
     assert d["post_to_wall"] == pytest.approx(0.05)  # the first post: 1 from the wall, r 0.5
     assert d["post_area"] == pytest.approx(math.pi * (0.25 + 0.0625) / 28)
+    free = novelty.descriptors(Mould(box=box, polygon=polygon, tethers=np.zeros((0, 3))))
+    assert dict(zip(novelty.DESCRIPTORS, free))["n_posts"] == 0 and np.isfinite(free).all()
 
 
 def test_features_are_invariant_under_the_planar_symmetries():

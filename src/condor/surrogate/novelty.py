@@ -110,9 +110,9 @@ def descriptors(mould) -> np.ndarray:
     edges = np.diff(np.asarray(rect.exterior.coords)[:3], axis=0)
     sides = np.sort(np.hypot(edges[:, 0], edges[:, 1]))
     n = len(tethers)
+    walls, spacing = np.zeros(1), 0.0
     if n:
         walls = shapely.distance(polygon.boundary, shapely.points(tethers[:, :2])) - tethers[:, 2]
-        spacing = 0.0
         if n > 1:
             d = np.linalg.norm(tethers[:, None, :2] - tethers[None, :, :2], axis=2)
             np.fill_diagonal(d, np.inf)
