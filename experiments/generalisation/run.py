@@ -107,23 +107,26 @@ def relabelled(ds, train_ids, val_ids):
     return ds.assign(split=("sample", split))
 
 
-def models(ds, lab_share_lofo: float) -> dict[str, dict]:
-    """Every model of the study: name -> {lab_share, held_out}."""
-    out = {f"mixture_{share:g}": {"lab_share": share, "held_out": "none"}
+def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]:
+    """Every model of the study: name -> {lab_share, held_out, n_train}; the mixture models'
+    and, with n_train other than N_TRAIN, the size models' (the named share at n_train)."""
+    tag = "" if n_train == N_TRAIN else f"_n{n_train}"
+    out = {f"mixture_{share:g}{tag}": {"lab_share": share, "held_out": "none", "n_train": n_train}
            for share in LAB_SHARES}
     for family in sorted(set(families_of(ds)) - {PAPER}):
-        out[f"without_{family}"] = {"lab_share": lab_share_lofo, "held_out": family}
+        out[f"without_{family}{tag}"] = {"lab_share": lab_share_lofo, "held_out": family,
+                                         "n_train": n_train}
     return out
 
 
 def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int) -> Path:
     held = None if spec["held_out"] == "none" else spec["held_out"]
-    train_ids = choose(ds, "train", N_TRAIN, spec["lab_share"], held)
+    train_ids = choose(ds, "train", spec.get("n_train", N_TRAIN), spec["lab_share"], held)
     val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
     val_ids = [int(i) for i in val if families_of(ds)[i] != held]  # pool's but the held family
     key = hashlib.sha256(json.dumps([train_ids, val_ids, settings], sort_keys=True)
                          .encode()).hexdigest()[:12]
-    path = cache / f"{name}_{key}.pt"
+    path = cache / f"{name}{'' if settings.get('epochs', 60) == 60 else '_e' + str(settings['epochs'])}_{key}.pt"
     if path.exists():
         return path
     log(f"train {name}: {len(train_ids)} training moulds ({spec}), {len(val_ids)} validation")
@@ -167,10 +170,15 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/condor/generalisation")
     ap.add_argument("--out", type=Path, default=HERE)
     ap.add_argument("--threads", type=int, default=2)
+    ap.add_argument("--n-train", type=int, default=N_TRAIN, help="training moulds a model")
+    ap.add_argument("--epochs", type=int, default=None, help="default: the preset's")
+    ap.add_argument("--only", nargs="+", default=None, help="train and score only these models")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
     config = Config.load(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
     settings = workflow_variants(config)["unet"]
+    if a.epochs is not None:
+        settings = {**settings, "epochs": a.epochs}
     ds, fresh = open_store(a.pool), open_store(a.fresh)
     test = first_replicas(ds, "test")
     fam = families_of(ds)
@@ -182,9 +190,11 @@ def main(argv=None) -> int:
     labels = {"paper": [PAPER] * len(ensembles["paper"].moulds),
               "lab": [str(fam[int(m)]) for m in ensembles["lab"].moulds],
               FRESH: [FRESH] * len(ensembles[FRESH].moulds)}
-    wanted = {n: s for n, s in models(ds, a.lab_share).items()
+    wanted = {n: s for n, s in models(ds, a.lab_share, a.n_train).items()
               if ("mixture" in a.steps and n.startswith("mixture"))
               or ("lofo" in a.steps and n.startswith("without"))}
+    if a.only:
+        wanted = {n: s for n, s in wanted.items() if n in a.only}
     rows, moulds = [], []
     for name, spec in wanted.items():
         checkpoint = train_model(ds, name, spec, settings, a.cache, a.threads)
