@@ -38,7 +38,9 @@ def write_store(path, ds, box=BOX):
     for i in range(n):
         write_inputs(path, i, ds["inputs"].values[i],
                      {"seed": 0, "symmetry": "none", "order": 1, "removal": "none", "n_tethers": 1}, lattice=np.zeros(ds["inputs"].values[i].shape, np.float32),
-                     polygon=shapely.box(1, 1, box - 1, box - 1), tethers=[[box / 2, box / 2, 1.0]])
+                     polygon=shapely.box(*(box / 2 - (0.2 + 0.25 * i / n) * box,) * 2,
+                                         *(box / 2 + (0.2 + 0.25 * i / n) * box,) * 2),
+                     tethers=[[box / 2, box / 2, 1.0]])  # areas 0.16-0.8 of the box
         write_sample(path, i, ds["fields"].values[i],
                      {"sim_seed": 0, "n_cells": int(ds["n_cells"].values[i]), "energy": 0.0,
                       "max_force": 0.0, "solver": "synthetic", "solver_seconds": 0.0, "hardware": "test"}, "ok")
