@@ -10,7 +10,8 @@ of config/config.yaml) on N_TRAIN training moulds of the pool:
 
 - mixture: LAB_SHARES of them from the lab families (each family an equal share), the rest
   from the paper's generator;
-- lofo (leave one family out): the chosen share, with no mould of one family (train, val);
+- lofo (leave one kind out): the chosen share, with no mould of a kind (two kindred families,
+  KINDS) in training or validation;
 - each model is scored on the pool's paper test set, the lab test set family by family, and the
   fresh-seed moulds, against the replicas' expected fields with the noise removed
   (condor.studies.families: error [95%], noise ceiling, mean tension bias [95%]).
@@ -19,7 +20,7 @@ of config/config.yaml) on N_TRAIN training moulds of the pool:
       --fresh results/generalisation_fresh/dataset.zarr --steps mixture lofo
 
 writes mixture.csv, generalisation.csv (docs/data/generalisation.csv's columns: `family` the
-moulds scored, `held_out` the family the model never saw, "none" for the mixture models) and
+moulds scored, `held_out` the families the model never saw, "none" for the mixture models) and
 moulds.csv (every model on every test mould: its squared error, the mould's noise, the mean
 tension ratio, and the novelty scores the domain verdict was chosen among: novelty.py).
 Checkpoints and predictions are cached under --cache (resumable: a killed run picks up).
@@ -54,6 +55,10 @@ from condor.surrogate.variants import train_config, workflow_variants  # noqa: E
 HERE = Path(__file__).resolve().parent
 N_TRAIN = 250  # training moulds of every model (the pool holds 252 of each source)
 LAB_SHARES = (0.0, 0.25, 0.5, 0.75)
+# lofo's held-out kinds: each pair of kindred families leaves together, so that a family is not
+# learnt from its sibling (a strip from the dog-bones, a ring from the annuli)
+KINDS = (("strip", "dogbone"), ("ring", "annulus"), ("polygon", "cross"), ("spline", "oval"),
+         ("frame", "side_anchored"))
 FRESH = "fresh seed"  # the family label of the fresh generator seed's moulds
 
 
@@ -74,15 +79,15 @@ def first_replicas(ds, split: str) -> np.ndarray:
     return np.asarray(ds["mould"].values)[ok & first & (labels == split)]
 
 
-def choose(ds, split: str, n: int, lab_share: float, exclude: str | None) -> list[int]:
+def choose(ds, split: str, n: int, lab_share: float, exclude: tuple[str, ...] = ()) -> list[int]:
     """n moulds of `split`: round(lab_share x n) lab moulds, the families in turn (their moulds
-    in id order), `exclude` left out; the rest paper moulds in id order."""
+    in id order), the families in `exclude` left out; the rest paper moulds in id order."""
     ids = first_replicas(ds, split)
     family = families_of(ds)[ids]
     n_lab = int(round(lab_share * n))
     paper = [int(i) for i in ids[family == PAPER]][: n - n_lab]
     by_family = {f: [int(i) for i in ids[family == f]] for f in sorted(set(family) - {PAPER})
-                 if f != exclude}
+                 if f not in exclude}
     lab: list[int] = []
     depth = 0
     while len(lab) < n_lab and any(len(v) > depth for v in by_family.values()):
@@ -113,17 +118,20 @@ def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]
     tag = "" if n_train == N_TRAIN else f"_n{n_train}"
     out = {f"mixture_{share:g}{tag}": {"lab_share": share, "held_out": "none", "n_train": n_train}
            for share in LAB_SHARES}
-    for family in sorted(set(families_of(ds)) - {PAPER}):
-        out[f"without_{family}{tag}"] = {"lab_share": lab_share_lofo, "held_out": family,
-                                         "n_train": n_train}
+    known = set(families_of(ds)) - {PAPER}
+    for kind in KINDS:
+        if not set(kind) <= known:
+            raise ValueError(f"the pool holds no moulds of {sorted(set(kind) - known)}")
+        out[f"without_{'_'.join(kind)}{tag}"] = {"lab_share": lab_share_lofo,
+                                                 "held_out": "+".join(kind), "n_train": n_train}
     return out
 
 
 def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int) -> Path:
-    held = None if spec["held_out"] == "none" else spec["held_out"]
+    held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
     train_ids = choose(ds, "train", spec.get("n_train", N_TRAIN), spec["lab_share"], held)
     val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
-    val_ids = [int(i) for i in val if families_of(ds)[i] != held]  # pool's but the held family
+    val_ids = [int(i) for i in val if families_of(ds)[i] not in held]  # pool's but the held
     key = hashlib.sha256(json.dumps([train_ids, val_ids, settings], sort_keys=True)
                          .encode()).hexdigest()[:12]
     path = cache / f"{name}{'' if settings.get('epochs', 60) == 60 else '_e' + str(settings['epochs'])}_{key}.pt"
