@@ -385,7 +385,7 @@ def _figures(folder: Path, table, confirmation, result, predicted, objective: st
             value = prediction.table["objective"].iloc[k]
             sim = f", sim. {simulated[k]:.3g}" if label == "design" and k < len(simulated) \
                 and np.isfinite(simulated[k]) else ""
-            rows.append((f"{label} {k + 1} (pred. {value:.3g}{sim})", images))
+            rows.append((f"{label} {k + 1}\n(pred. {value:.3g}{sim})", images))
     plots.image_grid(rows, folder / "designs.png", f"{'your moulds and ' if shown else ''}the "
                      f"best distinct designs for {objective} (predicted and simulated "
                      "objective in brackets): predicted fields and reproducibility",
