@@ -115,3 +115,64 @@ def test_help_states_each_scenes_window_in_mm(capsys):
         cli.main(["simulate", "--help"])
     text = " ".join(capsys.readouterr().out.split())
     assert "tiny 0.25 mm, default 0.5 mm, paper 1 mm" in text and "--fit extent" in text
+
+
+def test_simulate_prints_the_statistics_by_predict_s_names(tmp_path):
+    """condor simulate prints the whole-mould statistics under the names and units condor
+    predict prints (condor.data.fields.MOULD_STATISTICS) and keeps them in the result."""
+    from condor.data.fields import MOULD_STATISTICS, STATISTIC_UNITS
+
+    condor("mould", "--seed", 3, "--id", 1, "--scene", "tiny", "--out", "m.json", cwd=tmp_path)
+    proc = condor("simulate", "m.json", "--scene", "tiny", "--out", "s.npz", "--l0-um", 16,
+                  cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.splitlines()[0].startswith("m.json: read 1 outline, 0 holes, ")
+    lines = {line.split()[0]: line for line in proc.stdout.splitlines() if line.startswith("  ")}
+    stored = SimResult.load(tmp_path / "s.npz").info["statistics"]
+    for name in (*MOULD_STATISTICS, "tissue_area_mm2"):
+        assert name in lines and name in stored
+        assert f"{stored[name]['value']:.4g}" in lines[name]
+    assert f"({STATISTIC_UNITS['mean_tension']})" in lines["mean_tension"]
+    assert stored["tissue_area_mm2"]["value"] == pytest.approx(
+        stored["tissue_area"]["value"] * 0.016 ** 2)
+
+
+@pytest.mark.parametrize("argv, hint", [
+    (["predcit"], "did you mean 'predict'?"),
+    (["simulate", "m.json", "--out", "s.npz", "--fitt"], "--fitt: did you mean --fit?"),
+    (["simulate", "m.json", "--out", "s.npz", "--l0um", "16"], "--l0um: did you mean --l0-um?"),
+    (["simulate", "m.json", "--out", "s.npz", "--posts", "darkk"], "did you mean 'dark'?"),
+])
+def test_a_mistyped_command_flag_or_choice_suggests_the_nearest(argv, hint, capsys):
+    with pytest.raises(SystemExit) as done:
+        cli.main(argv)
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and hint in err.splitlines()[-1]
+
+
+def test_help_texts_the_issue_found_missing(capsys):
+    """check-store's store, evaluate --split and completion have help; rasterise --scene
+    states its real default, not None."""
+    def help_of(*command):
+        with pytest.raises(SystemExit):
+            cli.main([*command, "--help"])
+        return " ".join(capsys.readouterr().out.split())
+
+    assert "the dataset store to check" in help_of("check-store")
+    assert "the split whose moulds are scored" in help_of("evaluate")
+    assert "bash completion script" in help_of("completion")
+    rasterise = help_of("rasterise")
+    assert "(default: None)" not in rasterise and "the scene the simulation records" in rasterise
+
+
+def test_a_checkpoint_that_is_a_folder_is_named_as_one(tmp_path, capsys):
+    (tmp_path / "models").mkdir()
+    (tmp_path / "models" / "unet.pt").write_bytes(b"")
+    (tmp_path / "m.npy").write_bytes(b"")
+    with pytest.raises(SystemExit) as done:
+        cli.main(["predict", str(tmp_path / "m.npy"), "--checkpoint", str(tmp_path / "models"),
+                  "--out", str(tmp_path / "p.zarr")])
+    err = capsys.readouterr().err
+    assert done.value.code == 2 and err.count("\n") == 1
+    assert "is a folder, not a checkpoint file" in err and "unet.pt" in err
+    assert "train a model first" not in err

@@ -215,18 +215,28 @@ def test_predict_from_mould_json_writes_zarr(trained, tmp_path, capsys):
     assert list(written["field"].values) == ["P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz"]
 
 
-def test_predict_from_npy_and_png_agree(trained, tmp_path):
+def test_predict_from_npy_and_png_agree(trained, tmp_path, capsys):
+    """The masks as a .npy are read as they are; a picture of them (red mould, green posts on
+    black, row 0 at the top) is a picture of the mould, read as one (its larger side spans the
+    box) and placed as a drawing, centred: the same footprint, moved, to the pixels along its
+    edge."""
     _, checkpoint = trained
     inputs = synthetic_dataset(16, SIZE)["inputs"].values[3]
     np.save(tmp_path / "m.npy", inputs)
-    # A picture: red = mould, green = tether, row 0 at the top (highest y).
     rgb = np.zeros((SIZE, SIZE, 3), dtype=np.uint8)
     rgb[..., 0], rgb[..., 1] = inputs[0][::-1] * 255, inputs[1][::-1] * 255
     Image.fromarray(rgb).save(tmp_path / "m.png")
+    written = {}
     for source in ("m.npy", "m.png"):
         out = tmp_path / f"{source}.zarr"
         cli.main(["predict", str(tmp_path / source), "--checkpoint", str(checkpoint), "--out", str(out)])
-        np.testing.assert_array_equal(xr.open_zarr(out)["inputs"].values, inputs)
+        written[source] = xr.open_zarr(out)["inputs"].values
+    np.testing.assert_array_equal(written["m.npy"], inputs)
+    assert "m.png: read 1 outline" in capsys.readouterr().out
+    footprint = [w.any(axis=0) for w in written.values()]
+    assert footprint[1].sum() == pytest.approx(footprint[0].sum(), rel=0.15)
+    extents = [[np.ptp(np.nonzero(f)[k]) for k in (0, 1)] for f in footprint]
+    np.testing.assert_allclose(extents[1], extents[0], atol=1)
     cli.main(["predict", str(tmp_path / "m.npy"), "--checkpoint", str(checkpoint), "--out",
               str(tmp_path / "f.png")])
     assert (tmp_path / "f.png").stat().st_size > 5000
@@ -474,8 +484,9 @@ def test_predict_prints_statistics_and_writes_mm_coordinates(trained, tmp_path, 
     assert f"scaled by {scale:.4g} (--fit extent)" in printed
     written = xr.open_zarr(out)
     assert written.attrs["fit_scale"] == pytest.approx(scale, rel=1e-9)
-    # mm coordinates: pixel centres times l0
-    np.testing.assert_allclose(written["x"].values, (np.arange(SIZE) + 0.5) * BOX / SIZE * 0.016)
+    # mm coordinates: pixel centres times l0, at the drawing's size (the mould was scaled)
+    np.testing.assert_allclose(written["x"].values,
+                               (np.arange(SIZE) + 0.5) * BOX / SIZE * 0.016 / scale)
     assert written["x"].attrs["units"] == "mm" and written["y"].attrs["standard_name"] == \
         "projection_y_coordinate"
     assert written["raw"].attrs["long_name"] and written["raw"].attrs["units"] == "1"
@@ -492,6 +503,10 @@ def test_predict_prints_statistics_and_writes_mm_coordinates(trained, tmp_path, 
     # a spread only from a checkpoint with a reproducibility map (this one has none)
     assert ("+-" in lines["alignment"]) == ("spread" in written)
     assert {"mean_tension", "tissue_area", "tissue_area_mm2", "reproducibility"} <= set(lines)
+    # areas in mm^2 are the drawn mould's: the placed area scaled back by the fit
+    assert stats["tissue_area_mm2"]["value"] == pytest.approx(
+        stats["tissue_area"]["value"] * (0.016 / scale) ** 2, rel=1e-9)
+    assert "drawn size" in lines["tissue_area_mm2"]
     assert "training domain: inside" in printed or "training domain: OUTSIDE" in printed
     assert "tethers 4" in printed
 
@@ -518,4 +533,26 @@ def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
     assert best.n_tethers <= 4 and len(table)
     assert (out / "figures" / "designs.png").is_file()
     assert "the objective's predicted spread is" in captured.err  # calibrated or not, said
-    assert np.isfinite(pd.read_csv(out / "summary.csv")["spread_factor"]).all()
+    summary = pd.read_csv(out / "summary.csv")
+    assert np.isfinite(summary["spread_factor"]).all()
+    # your mould's +-: at least 6 simulations, its standard error and one simulation's sd said
+    assert "(the mean of 6 simulations +- its standard error; one simulation scatters" in \
+        captured.out
+    # the user's scale end to end: the design at the drawing's size, in mm, beside the l0 one
+    scale = 0.9 * BOX / 37.5
+    assert summary["fit_scale"].iloc[0] == pytest.approx(scale) and summary["l0_um"].iloc[0] == 16
+    mark = json.loads((out / "condor_design.json").read_text())
+    assert mark["scale"]["fit_scale"] == pytest.approx(scale)
+    assert "design_01_drawn.dxf" in mark["files"]
+    drawn = json.loads((out / "design_01_drawn.json").read_text())
+    assert drawn["units"] == "mm" and "scaled by" in drawn["comment"]
+    xs = [x for x, _ in drawn["outline"]]
+    assert max(xs) - min(xs) == pytest.approx(0.6, rel=1e-6)  # the plate as drawn: 0.6 mm
+    back = load_mould(out / "design_01_drawn.json", get_scene("default"), l0_um=16, fit="extent")
+    assert back.polygon.symmetric_difference(best.polygon).area < 1e-6
+    svg = (out / "design_01_drawn.svg").read_text()
+    assert "At your drawing's size" in svg and 'data-units="mm"' in svg
+    from condor.moulds.read import load_placement
+
+    assert load_placement(out / "design_01_drawn.dxf", get_scene("default"), l0_um=16,
+                          fit="extent").drawn_l0[0] == pytest.approx(0.6 * 1000 / 16, rel=1e-6)

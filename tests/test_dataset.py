@@ -208,6 +208,13 @@ def test_score_matches_the_noise_corrected_error_computed_by_hand(replicated_sto
     assert again["accuracy"].set_index("method").loc["predictions", "field_error"] == \
         pytest.approx(row["field_error"], rel=1e-12)
     assert {"r", "r_lo", "r_hi", "bias", "bias_lo", "bias_hi"} <= set(result["statistics"])
+    # one vocabulary: condor's statistics under the names condor predict prints them, beside
+    # the paper's that condor has no name for
+    from condor.data.fields import MOULD_STATISTICS
+
+    named = list(result["statistics"]["statistic"])
+    assert set(named) >= set(MOULD_STATISTICS) - {"direction"}
+    assert not {"mean_T_norm", "n_P_gt_0.2"} & set(named) and "mean_P" in named
     with pytest.raises(ValueError, match="2 replicated"):
         condor.score(np.zeros((3, 8, PIXELS, PIXELS)), path)
 

@@ -131,6 +131,39 @@ def test_selection_has_distinct_top_designs_and_a_spread_of_others(analytic_sear
     assert rest["objective"].std() > others["objective"].std()
     again = select_for_confirmation(result, n_top=3, n_random=6, seed=1)
     assert again.equals(chosen)
+    # the stated rule: every two of the best differ in 10% of their footprint or half their posts
+    from condor.design.confirm import DISTINCT_FOOTPRINT, DISTINCT_POSTS, distinct
+    from condor.moulds.mould import input_channels
+
+    channels = [input_channels(result.mould(d), SCENE.pixels) for d in top["design"]]
+    for i in range(len(channels)):
+        for j in range(i):
+            assert distinct(channels[i], channels[j])
+    # and a better-ranked design that is not picked is a near-copy of one that is
+    skipped = [d for d in result.ranked()["design"] if d not in set(top["design"])
+               and result.ranked().set_index("design").loc[d, "rank"] < top["rank"].max()
+               and bool(result.ranked().set_index("design").loc[d, "feasible"])]
+    for d in skipped:
+        mine = input_channels(result.mould(d), SCENE.pixels)
+        assert any(not distinct(mine, other) for other in channels)
+    assert 0 < DISTINCT_FOOTPRINT < DISTINCT_POSTS < 1
+
+
+def test_distinct_by_footprint_or_posts():
+    from condor.design.confirm import distinct
+
+    a = np.zeros((2, 20, 20), np.uint8)
+    a[0, 5:15, 5:15] = 1
+    b = a.copy()
+    b[0, 5:15, 14] = 0  # a tenth of the footprint less
+    c = a.copy()
+    c[0, 5:15, 15] = 1  # 10 of 110 pixels more: 9%
+    assert distinct(a, b) and not distinct(a, c)
+    d, e = a.copy(), a.copy()
+    d[0, 8:10, 8:10], d[1, 8:10, 8:10] = 0, 1
+    e[0, 8:10, 9:11], e[1, 8:10, 9:11] = 0, 1  # the post moved by half its width
+    e[0, 8:10, 8] = 1
+    assert distinct(d, e) and not distinct(d, d)
 
 
 def test_simulate_designs_scores_the_replica_mean(analytic_search):

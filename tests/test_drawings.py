@@ -269,7 +269,9 @@ def test_bad_arguments_are_named(tmp_path, kwargs, message):
 
 
 def test_file_level_errors(tmp_path):
-    with pytest.raises(DrawingError, match="unknown mould file type '.png'"):
+    with pytest.raises(DrawingError, match="unknown mould file type '.txt'"):
+        load_mould(_write(tmp_path / "m.txt", "x"), TINY)
+    with pytest.raises(DrawingError, match="m.png is not a picture condor can read"):
         load_mould(_write(tmp_path / "m.png", "x"), TINY)
     with pytest.raises(DrawingError, match="not valid JSON"):
         load_mould(_write(tmp_path / "m.json", "{"), TINY)
@@ -346,6 +348,44 @@ def test_a_lone_enclosing_circle_is_a_round_outline(tmp_path):
     exact = math.pi * 36
     assert exact - 2 * math.pi * 6 * FLATTEN_TOLERANCE_L0 < mould.polygon.area <= exact
     np.testing.assert_allclose(mould.tethers, [[TINY.box / 2, TINY.box / 2, 1.0]], atol=1e-9)
+
+
+def _ring_dxf(path, hole_layer: str):
+    """A 10 mm ring in metres: the outline and the hole as CIRCLEs (the hole on
+    `hole_layer`), 4 posts of 0.3 mm."""
+    doc = ezdxf.new()
+    doc.units = ezdxf.units.M
+    msp = doc.modelspace()
+    msp.add_circle((0, 0), 0.005)
+    msp.add_circle((0, 0), 0.002, dxfattribs={"layer": hole_layer})
+    for x, y in ((0.0035, 0), (-0.0035, 0), (0, 0.0035), (0, -0.0035)):
+        msp.add_circle((x, y), 0.0003)
+    doc.saveas(path)
+    return path
+
+
+def test_a_circle_drawn_as_a_hole_is_questioned_and_the_hole_conventions_read_it(tmp_path):
+    """Issue 42: a DXF ring whose hole is a CIRCLE became a 2 mm post without a word. The line
+    of what was read says 5 posts and questions the big one, saying how to draw a hole; on a
+    layer named HOLES (DXF) or with class="hole" (SVG) the circle is a hole."""
+    plain = load_placement(_ring_dxf(tmp_path / "ring.dxf", "0"), get_scene("default"),
+                           l0_um=16, fit="extent")
+    line = plain.describe()
+    assert "read 1 outline, 0 holes, 5 posts" in line and "\n" not in line
+    assert "post 1 (radius 125 l0 = 2 mm) is 3 times the largest training post's" in line
+    assert "holds the middle of the mould: is it a hole?" in line
+    assert "closed polyline" in line and "layer named HOLES" in line and 'class="hole"' in line
+    layered = load_placement(_ring_dxf(tmp_path / "holes.dxf", "HOLES"), get_scene("default"),
+                             l0_um=16, fit="extent")
+    assert layered.describe().startswith("read 1 outline, 1 hole, 4 posts (radius 18.75 l0 = "
+                                         "0.3 mm drawn, 0.844 l0 placed)")
+    assert "is it a hole" not in layered.describe()
+    assert len(layered.mould.polygon.interiors) == 1 and layered.mould.n_tethers == 4
+    svg = SVG_HEAD + ('<circle cx="8" cy="8" r="6"/><circle class="hole" cx="8" cy="8" r="2"/>'
+                      '<circle cx="8" cy="4.8" r="0.4"/></svg>')
+    ring = load_placement(_write(tmp_path / "ring.svg", svg), TINY)
+    assert len(ring.mould.polygon.interiors) == 1 and ring.mould.n_tethers == 1
+    assert ring.contents() == "1 outline, 1 hole, 1 post (radius 0.4 l0)"
 
 
 # --------------------------------------------------------------------------- fit, domain

@@ -235,7 +235,7 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert "0.07 [0.065, 0.075] on the 24 paper test moulds" in headline
     assert "one simulation (the noise ceiling): 0.1 [0.09, 0.11]" in headline
     assert "2 ms (one thread); one simulation 2 s (1,000 times the surrogate's)" in headline
-    assert "hold 88%" in headline and "mean P +3.0% [+2.9, +3.1]" in headline
+    assert "hold 88%" in headline and "mean P (paper) +3.0% [+2.9, +3.1]" in headline
     assert "the dataset's solver (relaxed_anneal) 0.04 [0, 0.08]" in headline
     # the lab test set's row: its error against its ceiling, and the hardest family
     assert ("0.14 [0.12, 0.16] on 12 lab test moulds; one simulation: 0.1 [0.09, 0.11]; 2 "
@@ -244,7 +244,7 @@ def test_condor_report_opens_with_a_summary_and_has_every_section(tmp_path):
     assert ("Verdict: unet lands closer to the expected organisation than one simulation on the "
             "24 paper test moulds, at 2 ms a mould; on the lab test set it lands farther from "
             "the expected organisation than one simulation; its spread map is calibrated; its "
-            "largest bias is mean P +3.0%; the dataset's solver is not resolved from the "
+            "largest bias is mean P (paper) +3.0%; the dataset's solver is not resolved from the "
             "paper's CONDOR.") in headline
     assert "0.881" in summary  # the paper's r beside ours
     # One set of figures per question: the surrogate's statistics on every test mould only
@@ -457,7 +457,7 @@ def test_headline_without_a_spread_map_or_a_reference_says_so():
     answers = dict(zip(numbers["question"], numbers["answer"]))
     assert answers["Calibration of the spread map"] == "unet predicts no spread"
     assert answers["Distance to the paper's CONDOR"].startswith("not measured")
-    assert "mean P -2.0% [-2.1, -1.9]" in answers["Largest bias (whole-mould statistic)"]
+    assert "mean P (paper) -2.0% [-2.1, -1.9]" in answers["Largest bias (whole-mould statistic)"]
     assert words.startswith("Verdict: unet lands farther from the expected organisation than "
                             "one simulation on the 24 paper test moulds")
     assert "not resolved" not in words and "paper's CONDOR" not in words

@@ -113,6 +113,13 @@ def test_accuracy_tables_recover_known_errors_ceiling_and_bias():
     assert s.loc[("offset", "mean_Sx2_norm"), "bias"] == pytest.approx(
         np.median(0.2 / (mu[:, 2].mean(axis=(1, 2)))), rel=0.05)
     assert set(stats.columns) >= {"method", "statistic", "r", "r_ceiling", "bias"}
+    # condor's statistics by predict's names: a perfect answer has no bias on them; the
+    # signed alignment_x has no ratio bias; the paper's r only on the paper's statistics
+    assert abs(s.loc[("perfect", "mean_tension"), "bias"]) < 0.01
+    assert abs(s.loc[("perfect", "tissue_area"), "bias"]) < 0.01
+    assert np.isnan(s.loc[("perfect", "alignment_x"), "bias"])
+    assert np.isnan(s.loc[("perfect", "alignment"), "paper_r"])
+    assert s.loc[("perfect", "mean_tension"), "paper_r"] == 0.98
 
 
 def test_accuracy_of_a_prediction_uses_its_own_density_and_skips_failures():

@@ -16,12 +16,56 @@ from condor.moulds.mould import PAPER
 from condor.moulds.paper import MouldParams
 from condor.moulds.place import FIT_MODES
 from condor.moulds.read import load_placement
+from condor.moulds.read_picture import POST_MODES, PictureOptions
 from condor.moulds.units import UNITS
 from condor.surrogate.modes import AUTO_PRECISION, DEFAULT_PRECISION, PRECISIONS, PREDICTION_MODES
 
 
 class CLIError(Exception):
     """A user error: printed as one line, exit status 2."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse's parser, whose errors suggest the nearest subcommand, choice or flag
+    (difflib; argparse's own suggest_on_error needs Python 3.14)."""
+
+    def parse_args(self, args=None, namespace=None):
+        namespace, extras = self.parse_known_args(args, namespace)
+        if extras:
+            child = self._command_parser(namespace)
+            hint = (child or self)._suggest_flags(extras)
+            (child or self).error(f"unrecognized arguments: {' '.join(extras)}{hint}")
+        return namespace
+
+    def _command_parser(self, namespace):
+        for action in self._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                return action.choices.get(getattr(namespace, action.dest, None))
+        return None
+
+    def _suggest_flags(self, extras) -> str:
+        import difflib
+
+        flags = [o for a in self._actions for o in a.option_strings]
+        hints = []
+        for word in extras:
+            if word.startswith("-"):
+                near = difflib.get_close_matches(word.split("=")[0], flags, n=1, cutoff=0.6)
+                if near:
+                    hints.append(f"{word}: did you mean {near[0]}?")
+        return f" ({'; '.join(hints)})" if hints else ""
+
+    def error(self, message):
+        import difflib
+        import re
+
+        match = re.search(r"invalid choice: '([^']*)'", message)
+        if match:
+            choices = [str(c) for a in self._actions if a.choices for c in a.choices]
+            near = difflib.get_close_matches(match.group(1), choices, n=1, cutoff=0.5)
+            if near:
+                message += f" (did you mean {near[0]!r}?)"
+        super().error(message)
 
 
 # --- what an argument may be -------------------------------------------------------------------
@@ -67,9 +111,15 @@ def _load_placement(args, scene, path=None):
     """A mould from the generator's JSON, a minimal JSON, an SVG or a DXF (condor.moulds.read),
     with its placement (how its units were read, its scale factor) printed."""
     path = args.mould if path is None else path
-    placement = load_placement(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units)
+    placement = load_placement(path, scene, l0_um=args.l0_um, fit=args.fit, units=args.units,
+                               picture=_picture_options(args))
     print(f"{path}: {placement.describe()}", flush=True)
     return placement
+
+
+def _picture_options(args) -> PictureOptions:
+    """How a picture of a mould is read: --invert, --posts, --pixel-um."""
+    return PictureOptions(invert=args.invert, posts=args.posts, pixel_um=args.pixel_um)
 
 
 def _schema_default(section: str, key: str):
@@ -107,12 +157,22 @@ def cmd_simulate(args) -> None:
 
     scene = get_scene(args.scene)
     out = _new_output(args.out, args.force)
+    import pandas as pd
+
+    from condor.surrogate.answer import format_mould_summary
+
     result = simulate_placed(_load_placement(args, scene), scene, args.solver, args.budget,
                              args.seed, out)
     print(f"{out}: {result.status}; {result.n_cells} cells, energy/cell "
           f"{result.energy_per_cell:.6g}, {result.seconds:.2f} s ({result.solver})")
     if result.status != "ok":
         sys.exit(1)
+    table = pd.DataFrame([{"statistic": name, "value": entry["value"], "spread": float("nan"),
+                           "unit": entry["unit"]}
+                          for name, entry in result.info["statistics"].items()])
+    print(f"whole-mould statistics, simulated (one simulation, seed {args.seed}; as condor "
+          "predict names them):")
+    print(format_mould_summary(table))
 
 
 def cmd_rasterise(args) -> None:
@@ -207,6 +267,7 @@ def cmd_predict(args) -> None:
     result = predict_mould(args.checkpoint, args.mould, args.out, l0_um=args.l0_um, fit=args.fit,
                            units=args.units, device=args.device, mode=args.mode,
                            precision=args.precision, force=args.force, check=args.check,
+                           picture=_picture_options(args),
                            say=lambda line: print(line, flush=True),
                            warn=lambda line: print(f"condor predict: warning: {line}",
                                                    file=sys.stderr))
@@ -219,7 +280,8 @@ def cmd_design(args) -> None:
 
     parse_objective(args.objective)  # a bad objective is named before anything is loaded
     scene = checkpoint_design_scene(args.checkpoint)
-    yours = [_load_placement(args, scene, path).mould for path in args.mould or ()]
+    placements = [_load_placement(args, scene, path) for path in args.mould or ()]
+    yours = [placement.mould for placement in placements]
     keep = tuple(k for k in (args.keep or "").split(",") if k)
     if keep and not yours:
         raise CLIError(f"--keep {args.keep} constrains the search to your mould: give it with "
@@ -228,6 +290,7 @@ def cmd_design(args) -> None:
                      seed=args.seed, n_top=args.top, n_random=args.random,
                      replicas=args.replicas, store=args.store, l0_um=args.l0_um,
                      your_moulds=yours, force=args.force, keep=keep,
+                     fit_scale=placements[0].scale if placements else 1.0,
                      say=lambda line: print(f"condor design: {line}", file=sys.stderr,
                                             flush=True)).iloc[0]
     print("\n".join(summary_lines(summary, args.out, args.top, args.objective, args.store,
@@ -240,9 +303,10 @@ def cmd_completion(args) -> None:
 
 # --- the parser: one function a subcommand ------------------------------------------------------
 
-def _scene_arg(parser: argparse.ArgumentParser, default="default") -> None:
+def _scene_arg(parser: argparse.ArgumentParser, default="default", unset: str = "") -> None:
     parser.add_argument("--scene", default=default, choices=sorted(PRESETS),
-                        help="scene preset: box, depth, pixels (default: %(default)s)")
+                        help="scene preset: box, depth, pixels (default: "
+                             + (unset if default is None else "%(default)s") + ")")
 
 
 def _force_arg(parser: argparse.ArgumentParser) -> None:
@@ -277,6 +341,18 @@ def _user_mould_args(parser: argparse.ArgumentParser) -> None:
                              f"training moulds' ({100 * scene.area_fraction:g}%% of the box), "
                              "capped by the extent fit. The scale factor is printed and "
                              "recorded. Default: keep the drawn size")
+    parser.add_argument("--pixel-um", type=_positive_float, default=None,
+                        help="a picture's pixel size in micrometres (with --l0-um); default: "
+                             "the picture states it (condor's own) or its larger side spans "
+                             "the scene's box")
+    parser.add_argument("--posts", default="auto", choices=POST_MODES,
+                        help="which regions of a picture are posts: auto (default) the round "
+                             "regions of a third shade inside the mould, else its small round "
+                             "holes; dark or light: the round regions darker or lighter than "
+                             "the mould; holes: every round hole; none: no posts")
+    parser.add_argument("--invert", action="store_true",
+                        help="a picture's mould is the shade at its edge (e.g. a picture inside "
+                             "a frame): by default the background is the edge's shade")
 
 
 def _parser_completion(sub) -> None:
@@ -306,7 +382,8 @@ def _parser_mould(sub) -> None:
 def _parser_simulate(sub) -> None:
     p = sub.add_parser("simulate", help="simulate one mould (JSON, SVG or DXF)")
     p.add_argument("mould", help="mould: the generator's JSON, a minimal JSON (outline and "
-                   "tethers), an SVG or a DXF drawing (docs/user_moulds.md)")
+                   "tethers), an SVG or a DXF drawing, or a picture of the mould (PNG, TIFF, "
+                   "JPEG) (docs/user_moulds.md)")
     p.add_argument("--out", required=True, help="result file (.npz)")
     p.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help=f"default: the simulator's ({DEFAULT_SOLVER})")
@@ -323,14 +400,15 @@ def _parser_rasterise(sub) -> None:
     p = sub.add_parser("rasterise", help="one simulation result to the 8 fields (.npy or .png)")
     p.add_argument("simulation", help="result file from `condor simulate`")
     p.add_argument("--out", required=True, help="fields.npy (8, y, x) or fields.png")
-    _scene_arg(p, default=None)
+    _scene_arg(p, default=None, unset="the scene the simulation records, else default")
     _force_arg(p)
     p.set_defaults(func=cmd_rasterise)
 
 
 def _parser_check_store(sub) -> None:
     p = sub.add_parser("check-store", help="list missing, pending, failed and corrupt samples")
-    p.add_argument("store", nargs="?", default="results/dataset.zarr")
+    p.add_argument("store", nargs="?", default="results/dataset.zarr",
+                   help="the dataset store to check (default: %(default)s)")
     p.add_argument("--deep", action="store_true",
                    help="also decode every chunk of every array (checksums, NaN) and move the "
                    "damaged ones aside, to <store>.damaged/, for the next run to rebuild")
@@ -381,7 +459,8 @@ def _parser_evaluate(sub) -> None:
     p.add_argument("--store", required=True, help="dataset store (.zarr)")
     p.add_argument("--checkpoint", required=True, help="checkpoint from `condor train`")
     p.add_argument("--out", required=True, help="folder for the CSV tables and PNG figures")
-    p.add_argument("--split", default="test", choices=SPLITS)
+    p.add_argument("--split", default="test", choices=SPLITS,
+                   help="the split whose moulds are scored (default: %(default)s)")
     p.add_argument("--modes", nargs="+", choices=PREDICTION_MODES, default=None,
                    help="prediction modes to evaluate (default: the checkpoint's and train)")
     p.add_argument("--no-baselines", action="store_true", help="skip the baselines")
@@ -392,8 +471,8 @@ def _parser_evaluate(sub) -> None:
 
 def _parser_predict(sub) -> None:
     p = sub.add_parser("predict", help="predict the 8 fields of one mould with a checkpoint")
-    p.add_argument("mould", help="mould: JSON, SVG or DXF (as for simulate), or its input "
-                   "channels as a (2, H, W) .npy / 2-channel .png")
+    p.add_argument("mould", help="mould: JSON, SVG, DXF or a picture of it (PNG, TIFF, JPEG), "
+                   "as for simulate; or its input channels as a (2, H, W) 0/1 .npy")
     p.add_argument("--checkpoint", required=True, help="checkpoint from `condor train`")
     p.add_argument("--out", required=True, help="fields.zarr (raw and normalised) or fields.png")
     p.add_argument("--mode", default=None, choices=PREDICTION_MODES,
@@ -437,7 +516,7 @@ def _parser_design(sub) -> None:
     p.add_argument("--store", default=None,
                    help="dataset store whose test moulds are the baseline to beat")
     p.add_argument("--mould", action="append", default=None,
-                   help="your own mould (JSON, SVG or DXF; repeat for several): scored, "
+                   help="your own mould (JSON, SVG, DXF or a picture; repeat for several): scored, "
                         "predicted and simulated, as the design to beat")
     p.add_argument("--keep", default=None, choices=["footprint", "posts", "footprint,posts",
                                                     "posts,footprint"],
@@ -458,11 +537,15 @@ SUBCOMMANDS = (_parser_completion, _parser_mould, _parser_simulate, _parser_rast
 def build_parser() -> argparse.ArgumentParser:
     from condor import __version__
 
-    parser = argparse.ArgumentParser(prog="condor", description=__doc__)
+    parser = Parser(prog="condor", description=__doc__)
     parser.add_argument("--version", action="version", version=f"condor {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
     for add in SUBCOMMANDS:
         add(sub)
+    for action in sub._choices_actions:  # each command's --help opens with its one line
+        child = sub.choices[action.dest]
+        if child.description is None:
+            child.description = action.help
     return parser
 
 

@@ -30,7 +30,8 @@ import pandas as pd
 import xarray as xr
 
 from condor.version import __version__
-from condor.data.fields import FIELD_NAMES
+from condor.data.fields import (FIELD_NAMES, MOULD_STATISTICS, STATISTIC_UNITS,
+                                mould_summary_statistics, normalise)
 from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store,
                                outline_polygon)
 from condor.data.store_check import check_store
@@ -197,6 +198,28 @@ def mould_geometry(ds, index: int):
 
 # --- the dataset card -----------------------------------------------------------------------
 
+def expected_statistics(ds) -> pd.DataFrame | None:
+    """condor's whole-mould statistics (MOULD_STATISTICS) of each replicated mould's expected
+    fields (`fields_mean`, normalised by its N_c): per statistic, its unit, the number of
+    moulds, and the median, smallest and largest; None when the store holds none."""
+    if "fields_mean" not in ds or "replicated" not in ds.coords or not ds.sizes["replicated"]:
+        return None
+    pixel_size = float(ds.attrs["pixel_size"])
+    rows = []
+    for k, mould in enumerate(ds["replicated"].values):
+        fields = ds["fields_mean"].isel(replicated=k).values.astype(np.float64)
+        n_cells = float(ds["n_cells"].isel(sample=int(mould)).values)
+        if np.isfinite(fields).all() and n_cells > 0:
+            rows.append(mould_summary_statistics(normalise(fields, n_cells), n_cells,
+                                                 pixel_size))
+    if not rows:
+        return None
+    table = pd.DataFrame(rows)
+    return pd.DataFrame([{"statistic": name, "unit": STATISTIC_UNITS[name], "moulds": len(table),
+                          "median": float(table[name].median()), "min": float(table[name].min()),
+                          "max": float(table[name].max())} for name in MOULD_STATISTICS])
+
+
 def card(store, config: dict | None = None) -> str:
     """A dataset card (Markdown) generated from the store: scene and model parameters, counts
     per split and status, generation core-hours and hardware, code version and config,
@@ -273,6 +296,12 @@ def card(store, config: dict | None = None) -> str:
         lines += ["## Per-field statistics (train split, ok samples, every pixel)", "",
                   _markdown(stats), "",
                   "Also: `condor.dataset.field_statistics(ds)`.", ""]
+    expected = expected_statistics(ds)
+    if expected is not None:
+        lines += ["## Whole-mould statistics of the replicated moulds' expected fields", "",
+                  "Under the names `condor predict`, `condor simulate` and `condor.score` use "
+                  "(condor.data.fields.mould_summary_statistics; docs/fields.md defines each):",
+                  "", _markdown(expected), ""]
     lines += [
         "## How to load it",
         "",

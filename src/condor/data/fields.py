@@ -40,6 +40,14 @@ STATISTICS = (
     "mean_Sy2_norm",
 )
 
+# The whole-mould statistics condor answers with (`mould_summary_statistics`; what predict,
+# simulate, predict --check, design and condor.score print, under these names), each with its
+# unit. docs/fields.md, "Whole-mould statistics", defines each once, beside the paper's
+# (STATISTICS, `mould_statistics`: kept where the paper's r is compared).
+MOULD_STATISTICS = ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
+STATISTIC_UNITS = {"alignment": "0..1", "direction": "deg from x", "alignment_x": "-1..1",
+                   "mean_tension": "T units", "tissue_area": "l0^2"}
+
 # Half-width of the kernel window in sigma. Per axis the neglected mass is
 # erfc(5.5 / sqrt 2) = 3.8e-8, so at most 7.6e-8 of a cell's 2-D mass is dropped.
 WINDOW_SIGMAS = 5.5
@@ -554,6 +562,32 @@ def mould_statistics(
         "mean_Sy2": float(sy2.mean() * per_paper_pixel),
         "mean_Sy2_norm": float(sy2.sum() / n_cells),
     }
+
+
+def mould_summary_statistics(normalised: np.ndarray, n_cells: float, pixel_size: float) -> dict:
+    """The whole-mould statistics (MOULD_STATISTICS) of one mould's normalised fields
+    (8, H, W); n_cells: N_c (to undo the normalisation for the area); pixel_size: l0.
+
+    Ratios of sums over the normalised fields, so they read the same at any normalisation:
+    alignment, the in-plane nematic order of the whole mould along its principal direction,
+    |(sum(Sx2 - Sy2), 2 sum SxSy)| / sum(Sx2 + Sy2) in [0, 1]; direction, that direction in
+    degrees from x in (-90, 90]; alignment_x, sum(Sx2 - Sy2) / sum(Sx2 + Sy2) in [-1, 1];
+    mean_tension, sum T / sum P (the paper's mean T normalised, mean_T_norm, for a mould away
+    from the grid's edge); tissue_area, the area in l0^2 where the density exceeds
+    DENSITY_THRESHOLD cells per paper pixel (the paper's n_P_gt_0.2 times the paper pixel's
+    area)."""
+    f = np.asarray(normalised, dtype=np.float64)
+    total = f.sum(axis=(-2, -1))
+    p, t, sx2, sy2, sxsy = (total[FIELD_NAMES.index(n)] for n in ("P", "T", "Sx2", "Sy2", "SxSy"))
+    along, shear, in_plane = sx2 - sy2, 2 * sxsy, sx2 + sy2
+    raw_density = f[FIELD_NAMES.index("P")] * float(n_cells) / f[0].size  # cells per grid pixel
+    per_paper_pixel = (PAPER_PIXEL_SIZE / pixel_size) ** 2
+    area = np.count_nonzero(raw_density * per_paper_pixel > DENSITY_THRESHOLD) * pixel_size ** 2
+    return {"alignment": math.hypot(along, shear) / in_plane if in_plane > 0 else math.nan,
+            "direction": 0.5 * math.degrees(math.atan2(shear, along)),
+            "alignment_x": along / in_plane if in_plane > 0 else math.nan,
+            "mean_tension": t / p if p > 0 else math.nan,
+            "tissue_area": float(area)}
 
 
 def statistics_table(

@@ -1,7 +1,9 @@
 """Confirm searched designs with the simulator: predicted against simulated objective.
 
-`select_for_confirmation` picks the designs to simulate: the best distinct designs and a
-random sample of the others, stratified over the predicted objective (one draw per
+`select_for_confirmation` picks the designs to simulate: the best designs that are distinct
+by a stated rule (`distinct`: footprints differing in DISTINCT_FOOTPRINT of the pixels either
+covers, or posts in DISTINCT_POSTS of theirs), every one of which is simulated and drawn, and
+a random sample of the others, stratified over the predicted objective (one draw per
 equal-width bin) so that the rank correlation measures how the surrogate orders the range
 of designs the search saw, not only the seed noise among near-equal top designs.
 
@@ -46,14 +48,28 @@ def replica_seeds(seed: int, mould_id: int, replicas: int) -> list[int]:
 
 # --------------------------------------------------------------------------- selection
 
+# Two designs are distinct (the k best that design confirms and draws are pairwise distinct)
+# when their footprints (mould and posts, on the surrogate's grid) differ in at least
+# DISTINCT_FOOTPRINT of the pixels either covers, or their posts in at least DISTINCT_POSTS of
+# the post pixels either has (a post moved by its own radius, or one more or fewer): less
+# cannot be told apart in a drawing, and confirms nothing new.
+DISTINCT_FOOTPRINT = 0.10
+DISTINCT_POSTS = 0.5
+
+
+def distinct(a: np.ndarray, b: np.ndarray) -> bool:
+    """Whether two designs' input channels (2, H, W) are distinct by the rule above."""
+    footprint = _difference(a.any(axis=0), b.any(axis=0))
+    posts = _difference(a[1].astype(bool), b[1].astype(bool))
+    return footprint >= DISTINCT_FOOTPRINT or posts >= DISTINCT_POSTS
+
 
 def select_for_confirmation(result: SearchResult, n_top: int, n_random: int,
-                            seed: int = 0, min_difference: float = 0.02) -> pd.DataFrame:
+                            seed: int = 0) -> pd.DataFrame:
     """Rows of result.designs to simulate, with a `role` column ("top" or "random").
 
-    top: the best-ranked distinct feasible designs whose rasters differ from every design
-    already picked in at least `min_difference` of the pixels either occupies (near-copies
-    confirm nothing new). random: from the remaining distinct designs with a defined
+    top: the best-ranked feasible designs, each distinct (`distinct`) from every design
+    already picked (fewer than n_top when the search found fewer distinct ones). random: from the remaining distinct designs with a defined
     objective, one uniform draw in each of `n_random` equal-width bins of the predicted
     objective, topped up by uniform draws when bins are empty (default_rng([seed, 1])). Most
     of a search's evaluations crowd near its optimum, so equal-width bins (rather than
@@ -69,10 +85,10 @@ def select_for_confirmation(result: SearchResult, n_top: int, n_random: int,
     for row in candidates[candidates["feasible"]].itertuples():
         if len(picked) >= n_top:
             break
-        occupied = input_channels(result.mould(row.design), pixels).any(axis=0)
-        if all(_difference(occupied, other) >= min_difference for other in rasters):
+        channels = input_channels(result.mould(row.design), pixels)
+        if all(distinct(channels, other) for other in rasters):
             picked.append(row.design)
-            rasters.append(occupied)
+            rasters.append(channels)
     rest = candidates[~candidates["design"].isin(picked)]
     chosen_random = _stratified_sample(rest["design"].to_numpy(), rest["objective"].to_numpy(),
                                        n_random, np.random.default_rng([int(seed), 1]))

@@ -13,10 +13,18 @@ from shapely import affinity
 from shapely.geometry import Polygon
 
 from condor.model.scenes import PRESETS, Scene
+from condor.moulds.domain import TRAINING_TETHER_RADIUS
 from condor.moulds.mould import DrawingError, InvalidMouldError, Mould, check_mould
+from condor.moulds.shapes import HOW_TO_DRAW_A_HOLE
 from condor.moulds.units import length_text
 
 FIT_MODES = ("area", "extent")  # --fit: the training moulds' area (capped by the window), or the window
+# What was read is questioned (Placement.questions) for a post whose radius is more than
+# LARGE_POST times the training posts' largest (TRAINING_TETHER_RADIUS, box sides), or one
+# that holds the outline's centroid and is at least MIDDLE_POST of the outline's smaller
+# side across: most often a hole drawn as a circle.
+LARGE_POST = 1.5
+MIDDLE_POST = 0.4
 
 
 @dataclass(frozen=True)
@@ -35,8 +43,48 @@ class Placement:
     reading: str = "l0 (a mould file)"  # how the file's units were read
 
     def describe(self) -> str:
-        """One line: how the units were read, the drawn and placed size, the scale factor."""
-        return f"read in {self.reading}; {self._size_text()}"
+        """One line: what was read (outline, holes, posts with their radii), how the units were
+        read, the drawn and placed size, the scale factor, and any question on a post."""
+        questions = self.questions()
+        return (f"read {self.contents()} in {self.reading}; {self._size_text()}"
+                + (f"; check: {' '.join(questions)}" if questions else ""))
+
+    def contents(self) -> str:
+        """What was read: "1 outline, 1 hole, 4 posts (radius 0.25 mm)", radii at the drawn
+        size (in l0, and mm given l0_um)."""
+        holes = len(self.mould.polygon.interiors)
+        radii = np.asarray(self.mould.tethers, dtype=float).reshape(-1, 3)[:, 2] / self.scale
+        text = f"1 outline, {holes} hole{'s' * (holes != 1)}, {len(radii)} post{'s' * (len(radii) != 1)}"
+        if len(radii):
+            distinct = sorted({f"{r:.3g}": float(r) for r in radii}.values())
+            shown = ", ".join(length_text(r, self.l0_um) for r in distinct[:4])
+            more = f", ... ({len(distinct)} radii)" if len(distinct) > 4 else ""
+            placed = ", ".join(f"{r * self.scale:.3g}" for r in distinct[:4])
+            text += (f" (radius {shown}{more} drawn, {placed} l0 placed)" if self.fit else
+                     f" (radius {shown}{more})")
+        return text
+
+    def questions(self) -> list[str]:
+        """Sentences that question what was read: a post far larger than any training post,
+        or one that holds the mould's middle, is most often a hole drawn as a circle."""
+        mould = self.mould
+        tethers = np.asarray(mould.tethers, dtype=float).reshape(-1, 3)
+        largest = TRAINING_TETHER_RADIUS[1] * float(mould.box)
+        xmin, ymin, xmax, ymax = mould.polygon.bounds
+        centroid = mould.polygon.centroid
+        asked = []
+        for k, (x, y, r) in enumerate(tethers, start=1):
+            why = []
+            if r > LARGE_POST * largest:
+                why.append(f"is {r / largest:.2g} times the largest training post's radius "
+                           f"({TRAINING_TETHER_RADIUS[1]:g} of the box)")
+            if math.hypot(centroid.x - x, centroid.y - y) < r and \
+                    2 * r >= MIDDLE_POST * min(xmax - xmin, ymax - ymin):
+                why.append("holds the middle of the mould")
+            if why:
+                asked.append(f"post {k} (radius {length_text(r / self.scale, self.l0_um)}) "
+                             f"{' and '.join(why)}: is it a hole? If so, {HOW_TO_DRAW_A_HOLE}.")
+        return asked
 
     def _size_text(self) -> str:
         width, height = self.drawn_l0
@@ -52,7 +100,7 @@ class Placement:
                 "drawn_width_l0": float(self.drawn_l0[0]),
                 "drawn_height_l0": float(self.drawn_l0[1]),
                 "l0_um": None if self.l0_um is None else float(self.l0_um),
-                "units_read": self.reading}
+                "units_read": self.reading, "read": self.contents()}
 
 
 def window_text(scene: Scene, l0_um: float | None) -> str:
@@ -150,12 +198,13 @@ def _way_forward(drawn, scene: Scene, l0_um: float | None) -> str:
     larger = [s for s in PRESETS.values() if s.box * scene.max_extent >= side and s.box > scene.box]
     if larger:
         best = min(larger, key=lambda s: s.box)
-        ways.append(f"or --scene {best.name} (window {length_text(best.box, l0_um)}) to simulate it "
-                    "at its drawn size")
+        ways.append(f"or the {best.name!r} scene (window {length_text(best.box, l0_um)}) holds it "
+                    f"at its drawn size (condor simulate --scene {best.name}; predict and design "
+                    "take their checkpoint's scene, so a checkpoint trained on it)")
     else:
         biggest = max(PRESETS.values(), key=lambda s: s.box)
-        ways.append(f"no scene holds it at its drawn size (the largest window, --scene "
-                    f"{biggest.name}'s, is {length_text(biggest.box, l0_um)})")
+        ways.append(f"no scene holds it at its drawn size (the largest window, the "
+                    f"{biggest.name!r} scene's, is {length_text(biggest.box, l0_um)})")
     return "; ".join(ways)
 
 

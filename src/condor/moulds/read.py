@@ -28,6 +28,7 @@ from condor.model.scenes import Scene, same_length
 from condor.moulds.mould import DrawingError, InvalidMouldError, Mould, load_json
 from condor.moulds.place import Placement, fit_factor, fit_mode, place_drawing
 from condor.moulds.read_dxf import read_dxf
+from condor.moulds.read_picture import PICTURE_SUFFIXES, PictureOptions, read_picture
 from condor.moulds.read_svg import read_svg
 from condor.moulds.shapes import (Circle, Drawing, Ring, Shapes, drop_closing_point,
                                   finish_drawing)
@@ -35,8 +36,9 @@ from condor.moulds.units import UNITS, check_l0_um, resolve_units
 
 
 def load_mould(path, scene: Scene, l0_um: float | None = None, fit=False,
-               units: str | None = None) -> Mould:
-    """The mould in `path` (.json, .svg or .dxf), placed in `scene`'s box (lengths in l0).
+               units: str | None = None, picture: PictureOptions | None = None) -> Mould:
+    """The mould in `path` (.json, .svg, .dxf, or a picture: .png, .tif, .tiff, .jpg, .jpeg),
+    placed in `scene`'s box (lengths in l0).
 
     l0_um: the cell spacing l0 in micrometres; required for a drawing in mm or um.
     fit: False keeps the drawn size; "extent" scales the drawing, keeping its aspect
@@ -47,6 +49,8 @@ def load_mould(path, scene: Scene, l0_um: float | None = None, fit=False,
         without "units", a DXF with $INSUNITS = 0, an SVG whose root has neither
         data-units nor an absolute width/height); a file that states other units is an
         error.
+    picture: how to read a picture (condor.moulds.read_picture.PictureOptions: --invert,
+        --posts, --pixel-um); a picture that states no scale spans `scene`'s box.
 
     Raises DrawingError (unreadable file, no or several outlines, missing units or l0_um)
     or InvalidMouldError (a mould that does not fit: too large, tether outside the
@@ -54,11 +58,13 @@ def load_mould(path, scene: Scene, l0_um: float | None = None, fit=False,
     both ValueErrors whose message names the file and the bad value. OSError if the file
     cannot be read.
     """
-    return load_placement(path, scene, l0_um=l0_um, fit=fit, units=units).mould
+    return load_placement(path, scene, l0_um=l0_um, fit=fit, units=units,
+                          picture=picture).mould
 
 
 def load_placement(path, scene: Scene, l0_um: float | None = None, fit=False,
-                   units: str | None = None, data=None) -> Placement:
+                   units: str | None = None, data=None,
+                   picture: PictureOptions | None = None) -> Placement:
     """As load_mould, with how the mould was placed: its scale factor (`Placement.scale`),
     the fit mode and the drawn size (for printing and recording)."""
     path = Path(path)
@@ -67,7 +73,13 @@ def load_placement(path, scene: Scene, l0_um: float | None = None, fit=False,
         data = _read_json(path)
     if isinstance(data, dict) and "polygon" in data:
         return _mould_json(path, scene, fit, units, l0_um)
-    drawing = _read_drawing(path, l0_um, units, data)
+    if path.suffix.lower() in PICTURE_SUFFIXES:
+        if units is not None:
+            raise DrawingError(f"{path} is a picture: --units says nothing about it (its scale "
+                               "is its own, --pixel-um, or the scene's box)")
+        drawing = read_picture(path, float(scene.box), l0_um, picture)
+    else:
+        drawing = _read_drawing(path, l0_um, units, data)
     placement = place_drawing(drawing.polygon, drawing.tethers, scene, fit=fit, l0_um=l0_um,
                       source=str(path))
     return replace(placement, reading=drawing.reading)
@@ -89,7 +101,7 @@ def _read_drawing(path: Path, l0_um, units, data=None) -> Drawing:
     if suffix == ".dxf":
         return read_dxf(path, units, l0_um)
     raise DrawingError(f"{path}: unknown mould file type {suffix!r}; use .json (a mould or "
-                       "an outline), .svg or .dxf")
+                       "an outline), .svg, .dxf, or a picture (.png, .tif, .jpg)")
 
 
 def _check_arguments(l0_um, units) -> None:

@@ -12,8 +12,8 @@ from ezdxf import path as dxfpath
 from ezdxf import units as dxfunits
 
 from condor.moulds.mould import DrawingError
-from condor.moulds.shapes import (FLATTEN_TOLERANCE_L0, Circle, Drawing, Ring, Shapes,
-                                  drop_closing_point, finish_drawing, sort_rings)
+from condor.moulds.shapes import (FLATTEN_TOLERANCE_L0, HOLE_LAYERS, Circle, Drawing, Ring,
+                                  Shapes, drop_closing_point, finish_drawing, sort_rings)
 from condor.moulds.units import DXF_UNITS_PROPERTY, l0_per_unit, listing, resolve_units
 
 _DXF_OPEN_EDGES = ("LINE", "ARC", "LWPOLYLINE", "POLYLINE", "SPLINE", "ELLIPSE")
@@ -22,7 +22,7 @@ _DXF_OPEN_EDGES = ("LINE", "ARC", "LWPOLYLINE", "POLYLINE", "SPLINE", "ELLIPSE")
 def read_dxf(path: Path, units: str | None, l0_um: float | None) -> Drawing:
     """Rings and circles of a DXF drawing's modelspace (read with ezdxf).
 
-    CIRCLE entities are tethers; closed LWPOLYLINE, POLYLINE, SPLINE and ELLIPSE are closed
+    CIRCLE entities are tethers (holes on a layer named HOLE or HOLES); closed LWPOLYLINE, POLYLINE, SPLINE and ELLIPSE are closed
     shapes (curves and bulges flattened); LINE, ARC and open polylines or splines joined end
     to end into a loop (ezdxf.edgeminer) form one closed shape. Block references (INSERT)
     are expanded; entities on layers that are off or frozen, and everything else (TEXT,
@@ -65,8 +65,9 @@ def read_dxf(path: Path, units: str | None, l0_um: float | None) -> Drawing:
         kind = entity.dxftype()
         if kind == "CIRCLE":
             centre = entity.ocs().to_wcs(entity.dxf.center)
+            hole = str(entity.dxf.get("layer", "0")).lower() in HOLE_LAYERS
             circles.append(Circle(name, float(centre.x), float(centre.y),
-                                   float(entity.dxf.radius)))
+                                   float(entity.dxf.radius), hole=hole))
         elif kind in _DXF_OPEN_EDGES and edgesmith.is_closed_entity(entity):
             points = np.array([(v.x, v.y) for v in dxfpath.make_path(entity).flattening(tol)])
             rings.append(Ring(name, drop_closing_point(points, tol)))

@@ -13,8 +13,9 @@ import numpy as np
 import svgelements
 
 from condor.moulds.mould import DrawingError, InvalidMouldError
-from condor.moulds.shapes import (FLATTEN_TOLERANCE_L0, Circle, Drawing, Ring, Shapes,
-                                  drop_closing_point, finish_drawing, flatten_curve, sort_rings)
+from condor.moulds.shapes import (FLATTEN_TOLERANCE_L0, HOLE_CLASS, Circle, Drawing, Ring,
+                                  Shapes, drop_closing_point, finish_drawing, flatten_curve,
+                                  sort_rings)
 from condor.moulds.units import l0_per_unit, resolve_units
 
 SVG_MM_PER_PX = 25.4 / 96  # CSS: 96 px per inch
@@ -135,7 +136,9 @@ def read_svg(path: Path, units: str | None, l0_um: float | None) -> Drawing:
                 f"<{tag}> number {counts[tag]} in document order")
         outline = abs(svgelements.Path(element))
         if isinstance(element, (svgelements.Circle, svgelements.Ellipse)):
-            circles.append(_svg_circle(outline, name, source))
+            circle = _svg_circle(outline, name, source)
+            circle.hole = _marked_hole(element)
+            circles.append(circle)
             continue
         subpaths = list(outline.as_subpaths())
         for k, subpath in enumerate(subpaths):
@@ -148,6 +151,15 @@ def read_svg(path: Path, units: str | None, l0_um: float | None) -> Drawing:
     shell, holes, tethers = sort_rings(source, rings, circles, ignored, tol)
     shapes = Shapes(source, unit, label, shell=shell, holes=holes, circles=tethers)
     return finish_drawing(shapes, per_user, l0_um, flip_y=True, how=how)
+
+
+def _marked_hole(element) -> bool:
+    """Whether an SVG circle is drawn as a hole: class "hole" among its classes,
+    data-condor="hole", or an id starting with "hole"."""
+    values = getattr(element, "values", {}) or {}
+    classes = str(values.get("class") or "").split()
+    return (HOLE_CLASS in classes or str(values.get("data-condor") or "") == HOLE_CLASS
+            or str(element.id or "").lower().startswith(HOLE_CLASS))
 
 
 def _flatten_subpath(subpath, tol: float) -> tuple[np.ndarray, bool]:

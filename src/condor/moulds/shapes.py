@@ -44,6 +44,16 @@ class Circle:
     x: float
     y: float
     r: float
+    hole: bool = False  # drawn as a hole by the file's convention (HOLE_LAYERS, HOLE_CLASS)
+
+
+# A circle is a hole, not a post, on a DXF layer of one of these names (any case), or, in an
+# SVG, with class "hole" (among its classes), data-condor="hole" or an id starting "hole".
+HOLE_LAYERS = ("hole", "holes")
+HOLE_CLASS = "hole"
+HOW_TO_DRAW_A_HOLE = ("draw a hole as a closed polyline (a DXF LWPOLYLINE, an SVG path, "
+                      "polygon or rect), or as a circle on a DXF layer named HOLES or an SVG "
+                      "circle with class=\"hole\"")
 
 
 @dataclass
@@ -129,17 +139,21 @@ def sort_rings(source: str, rings: list, circles: list, ignored: int, tol: float
     """(outline ring, hole rings, tether circles) of a drawing's closed shapes.
 
     The outline is the one closed shape that lies inside no other; closed shapes inside it
-    are holes; circles are tethers. With no closed shape but circles, a circle enclosing
-    every other circle is the outline (a round mould)."""
+    are holes; circles are tethers, except those marked as holes (`Circle.hole`: a DXF layer
+    HOLES, an SVG class "hole"), which are holes. With no closed shape but circles, a circle
+    enclosing every other circle is the outline (a round mould)."""
+    hole_rings = [_circle_ring(c, tol) for c in circles if c.hole]
+    circles = [c for c in circles if not c.hole]
     if not rings:
         enclosing = [c for c in circles if all(
             c is d or math.hypot(c.x - d.x, c.y - d.y) + d.r < c.r for d in circles)]
         if len(enclosing) == 1:
             outer = enclosing[0]
-            return _circle_ring(outer, tol), [], [c for c in circles if c is not outer]
+            return _circle_ring(outer, tol), hole_rings, [c for c in circles if c is not outer]
         raise DrawingError(f"{source} has no closed outline (a closed path, polygon or rect); "
                            f"found {len(circles)} circle(s) (tethers) and {ignored} open or "
                            "other element(s), which are ignored")
+    rings = rings + hole_rings
     polygons = [Polygon(r.points).buffer(0) for r in rings]  # containment of a repaired copy
     inside = [[i != j and polygons[j].contains(polygons[i]) for j in range(len(rings))]
               for i in range(len(rings))]

@@ -36,7 +36,22 @@ def _svg_text(x: float, y: float, text: str, size: float, scale: float, extra: s
             f'font-size="{size:g}"{extra}>{escape(text)}</text>')
 
 
-def write_svg(mould: Mould, path, l0_um: float | None = None) -> None:
+def drawn_mould(mould: Mould, scale: float) -> Mould:
+    """`mould` at the size its user drew it: a mould placed scaled by `scale` (--fit; a
+    Placement's scale) scaled back by 1 / scale about the box's corner, its box with it."""
+    from dataclasses import replace
+
+    from shapely import affinity
+
+    factor = 1.0 / float(scale)
+    tethers = np.asarray(mould.tethers, dtype=np.float64).reshape(-1, 3) * factor
+    return replace(mould, box=float(mould.box) * factor,
+                   polygon=affinity.scale(mould.polygon, factor, factor, origin=(0, 0)),
+                   tethers=tethers, area_fraction=None, origin=None, unpruned_tethers=None,
+                   symmetry=USER if mould.is_generated else mould.symmetry)
+
+
+def write_svg(mould: Mould, path, l0_um: float | None = None, note: str | None = None) -> None:
     """Write `mould` as an SVG drawing that opens in a browser: the outline (holes
     included) and tethers, the simulation box (dashed), the overall width and height, and a
     table of tether centres and diameters, in l0 and, given `l0_um`, in mm.
@@ -44,13 +59,13 @@ def write_svg(mould: Mould, path, l0_um: float | None = None) -> None:
     The geometry is in one unit, stated by data-units on <svg>: mm given l0_um (one user
     unit = 1 mm), else l0. load_mould reads it back (annotations are lines and text, which
     it ignores); y points up in the mould and down in SVG, so the drawing is mirrored into
-    SVG's axes and back."""
+    SVG's axes and back. `note`: a line under the title (the scale it is drawn at)."""
     unit, f = drawing_scale(l0_um)
     box = float(mould.box)
     side = box * f
     font = side / 36  # user units per font unit
     rows = _tether_rows(mould, l0_um)
-    left, top, right = 4.0 * font, 4.2 * font, 1.0 * font
+    left, top, right = 4.0 * font, (5.5 if note else 4.2) * font, 1.0 * font
     table_top = side + 4.4 * font
     bottom = 4.4 * font + (len(rows) + 1.8) * 1.3 * font
     view = (-left, -top, side + left + right, side + top + bottom)
@@ -113,9 +128,11 @@ def write_svg(mould: Mould, path, l0_um: float | None = None) -> None:
                   0.9, font, ' text-anchor="middle"'),
         _svg_text(aside - 0.5 * font, 0.5 * (y0 + y1), f"height {length_text(ymax - ymin, l0_um)}",
                   0.9, font, ' text-anchor="middle"', rotate=-90),
-        _svg_text(-left + 0.5 * font, -2.6 * font, title, 1.0, font),
-        _svg_text(-left + 0.5 * font, -1.3 * font, subtitle, 0.8, font),
+        _svg_text(-left + 0.5 * font, -(3.9 if note else 2.6) * font, title, 1.0, font),
+        _svg_text(-left + 0.5 * font, -(2.6 if note else 1.3) * font, subtitle, 0.8, font),
     ]
+    if note:
+        out.append(_svg_text(-left + 0.5 * font, -1.3 * font, note, 0.8, font))
     if rows:
         heading = ("tether", f"x ({_pair_unit(l0_um)})", f"y ({_pair_unit(l0_um)})",
                    f"diameter ({_pair_unit(l0_um)})")
@@ -153,13 +170,14 @@ def _title_lines(mould: Mould, l0_um: float | None, box_drawn: bool = True) -> t
             f"{scale}drawn in {unit}")
 
 
-def write_dxf(mould: Mould, path, l0_um: float | None = None) -> None:
+def write_dxf(mould: Mould, path, l0_um: float | None = None, note: str | None = None) -> None:
     """Write `mould` as a DXF drawing for CAD: the outline (and holes) as closed polylines on
     layer OUTLINE, tethers as circles on layer TETHERS, and on layer DIMENSIONS the overall
     width and height, tether labels and a table of tether centres and diameters.
 
     Given l0_um the drawing is in mm at true size ($INSUNITS = mm); otherwise it is in l0
-    ($INSUNITS = 0, header property condor_units = "l0"). Box coordinates, y up."""
+    ($INSUNITS = 0, header property condor_units = "l0"). Box coordinates, y up. `note`: a
+    line under the title (the scale it is drawn at)."""
     unit, f = drawing_scale(l0_um)
     doc = ezdxf.new("R2013", setup=True)
     doc.header["$MEASUREMENT"] = 1  # metric
@@ -191,7 +209,8 @@ def write_dxf(mould: Mould, path, l0_um: float | None = None) -> None:
     for i, (x, y, r) in enumerate(tethers, start=1):
         msp.add_text(f"T{i}", height=0.6 * size, dxfattribs=dims).set_placement(
             ((x + 0.8 * r) * f, (y + 0.8 * r) * f))
-    rows = [*_title_lines(mould, l0_um, box_drawn=False), "Box coordinates, y up."]
+    rows = [*_title_lines(mould, l0_um, box_drawn=False), *([note] if note else []),
+            "Box coordinates, y up."]
     if len(tethers):
         rows.append("Tether centres from the outline's lower-left corner, diameters "
                     f"({_pair_unit(l0_um)}):")

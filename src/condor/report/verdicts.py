@@ -13,11 +13,16 @@ from condor.measures.bars import CALIBRATED_90, MAX_BIAS, MIN_R, R_CEILING_SLACK
 
 from .kit import ReportError
 
-# Statistics as the report names them.
-STATISTIC_LABELS = {"mean_P": "mean P", "n_P_gt_0.2": "N(P > 0.2)", "mean_T": "mean T",
-                    "mean_T_norm": "mean T (normalised)", "mean_Sx2": "mean Sx2",
-                    "mean_Sx2_norm": "mean Sx2 (normalised)", "mean_Sy2": "mean Sy2",
-                    "mean_Sy2_norm": "mean Sy2 (normalised)"}
+# Statistics as the report names them: condor's by their names (as condor predict prints
+# them; the paper's name beside the two it shares), the paper's in words (docs/fields.md,
+# "Whole-mould statistics", defines each once).
+STATISTIC_LABELS = {"alignment": "alignment", "alignment_x": "alignment_x",
+                    "mean_tension": "mean_tension (paper: mean T normalised)",
+                    "tissue_area": "tissue_area (paper: N(P > 0.2))",
+                    "mean_P": "mean P (paper)", "n_P_gt_0.2": "N(P > 0.2) (paper)",
+                    "mean_T": "mean T (paper)", "mean_T_norm": "mean T normalised (paper)",
+                    "mean_Sx2": "mean Sx2 (paper)", "mean_Sx2_norm": "mean Sx2 normalised (paper)",
+                    "mean_Sy2": "mean Sy2 (paper)", "mean_Sy2_norm": "mean Sy2 normalised (paper)"}
 
 
 def against_ceiling(row, ceiling) -> str:
@@ -80,13 +85,14 @@ def method_statistics(statistics: pd.DataFrame, method: str) -> pd.DataFrame:
         "bias [95%]": [percent_text(r.bias, r.bias_lo, r.bias_hi) for r in rows.itertuples()],
         "n": rows["n"].to_numpy(),
         "paper r": [f"{'=' if r.paper_relation == '=' else '>'} {r.paper_r:g}"
-                    for r in rows.itertuples()],
+                    if np.isfinite(r.paper_r) else "not the paper's" for r in rows.itertuples()],
     })
 
 
 # The whole-mould statistics of the orientation, which the training-set study outside the run
 # (condor.findings "more_moulds") measured against the number of training moulds.
-ORIENTATION_STATISTICS = {"mean_Sx2", "mean_Sx2_norm", "mean_Sy2", "mean_Sy2_norm"}
+ORIENTATION_STATISTICS = {"mean_Sx2", "mean_Sx2_norm", "mean_Sy2", "mean_Sy2_norm", "alignment",
+                          "alignment_x"}
 
 
 def statistics_verdict(statistics: pd.DataFrame, method: str) -> str:

@@ -297,11 +297,38 @@ def mould_files(scene: Scene, seed: int, mould_id: int, params=None, out=None,
 def simulate_placed(placement, scene: Scene, solver: str | None, budget, seed: int,
                     out) -> SimResult:
     """One simulation of a placed mould (condor.moulds.place.Placement), saved to `out` with
-    how it was placed (its scale factor, the units read)."""
+    how it was placed (its scale factor, the units read) and its whole-mould statistics
+    (`simulated_statistics`, as `condor predict` names them)."""
     result = simulate_mould(placement.mould, scene, solver, budget, seed)
     result.info["placement"] = placement.record()
+    if result.status == "ok":
+        table = simulated_statistics(result, scene, placement.l0_um, placement.scale)
+        result.info["statistics"] = {row.statistic: {"value": float(row.value), "unit": row.unit}
+                                     for row in table.itertuples()}
     result.save(out)
     return result
+
+
+def simulated_statistics(result: SimResult, scene: Scene, l0_um: float | None = None,
+                         scale: float = 1.0) -> pd.DataFrame:
+    """The whole-mould statistics of one simulation, under the names and units `condor
+    predict` prints them (condor.data.fields.mould_summary_statistics, on the scene's grid):
+    `statistic`, `value`, `spread` (NaN: one simulation has none), `unit`; tissue_area_mm2
+    (given l0_um) at the drawn size, as predict's."""
+    from condor.data.fields import (MOULD_STATISTICS, STATISTIC_UNITS, mould_summary_statistics,
+                                    normalise)
+
+    raw = cell_fields(result.positions, result.orientations, result.tension, scene.box,
+                      scene.pixels, scene.sigma)
+    n_cells = len(result.positions)
+    values = mould_summary_statistics(normalise(raw, n_cells), n_cells, scene.pixel_size)
+    rows = [(name, values[name], np.nan, STATISTIC_UNITS[name]) for name in MOULD_STATISTICS]
+    if l0_um is not None:
+        mm2 = (float(l0_um) / 1000.0 / float(scale)) ** 2
+        rows.append(("tissue_area_mm2", values["tissue_area"] * mm2, np.nan,
+                     "mm^2" + (f", at the drawn size (placed at {scale:.4g}x)"
+                               if scale != 1.0 else "")))
+    return pd.DataFrame(rows, columns=["statistic", "value", "spread", "unit"])
 
 
 def rasterise_file(simulation, scene_name: str | None, out: Path) -> tuple[SimResult, Scene]:

@@ -7,7 +7,11 @@ simulation with replicas, and hand over drawings (condor.design, docs/design.md)
   the best confirmed design against the best mould of the dataset's test split;
 - search_history.csv;
 - design_NN.json (the mould, as `condor simulate` reads it), design_NN.svg and design_NN.dxf
-  (drawings with dimensions in l0 and, given `l0_um`, in mm), for the best `n_top` designs;
+  (drawings with dimensions in l0 and, given `l0_um`, in mm), for the best `n_top` designs:
+  the confirmed ones, distinct by condor.design.confirm's rule (DISTINCT_FOOTPRINT);
+- design_NN_drawn.json, .svg, .dxf: the same at the size of your drawing, when your mould
+  was placed scaled (--fit): scaled back by 1 / fit_scale, in mm given `l0_um` (the scale in
+  each drawing's title, in summary.csv and in condor_design.json);
 - predictions.zarr: their predicted fields (raw, normalised) and reproducibility maps;
 - your_moulds.csv: a user's own moulds, predicted and simulated the same way, when given;
 - figures/: predicted against simulated objective, the search's progress, the designs;
@@ -35,7 +39,8 @@ from condor.design import (confirm_designs, constrained_space, dataset_baseline,
                            design_table,
                            parse_objective, predict_designs, search_designs, simulate_designs)
 from condor.design.search import calibrated_statistic
-from condor.moulds.write import write_dxf, write_svg
+from condor.design.confirm import DISTINCT_FOOTPRINT, DISTINCT_POSTS
+from condor.moulds.write import drawn_mould, write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
 from condor.folder import LOCK_NAME, store_path
 from condor.model.lattice import build_lattice
@@ -57,12 +62,18 @@ class DesignOutputError(ValueError):
     """The design's output folder cannot be written as asked."""
 
 
-def own_files(n_top: int) -> list[str]:
-    """Every path (relative to the folder) that design writes with `n_top` designs, besides
-    its mark; predictions.zarr is a folder."""
+YOURS_MIN_REPLICAS = 6  # your moulds are simulated at least this often: their +- is a measured sd
+
+
+def own_files(n_top: int, drawn: bool = False) -> list[str]:
+    """Every path (relative to the folder) that design writes with `n_top` designs (and, with
+    `drawn`, their versions at your drawing's size), besides its mark; predictions.zarr is a
+    folder."""
+    kinds = ("", "_drawn") if drawn else ("",)
     return ["designs.csv", "summary.csv", "search_history.csv", "your_moulds.csv",
             "predictions.zarr",
-            *(f"design_{k:02d}.{ext}" for k in range(1, n_top + 1) for ext in ("json", "svg", "dxf")),
+            *(f"design_{k:02d}{kind}.{ext}" for k in range(1, n_top + 1) for kind in kinds
+              for ext in ("json", "svg", "dxf")),
             *(f"figures/{name}" for name in FIGURES)]
 
 
@@ -114,7 +125,7 @@ def _some(names: list[str], n: int = 3) -> str:
     return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
 
 
-def _out_dir(out_dir, force: bool, n_top: int) -> Path:
+def _out_dir(out_dir, force: bool, n_top: int, scale: dict | None = None) -> Path:
     """The output folder, ready: created, or emptied of an earlier design's files with
     `force` (only those its mark names; anything else refuses, module docstring); then
     marked with the files this run writes."""
@@ -137,7 +148,10 @@ def _out_dir(out_dir, force: bool, n_top: int) -> Path:
             elif path.exists() or path.is_symlink():
                 path.unlink()
     (out_dir / "figures").mkdir(parents=True, exist_ok=True)
-    (out_dir / MARK).write_text(json.dumps({"written_by": WRITER, "files": own_files(n_top)},
+    drawn = scale is not None and scale["fit_scale"] != 1.0
+    (out_dir / MARK).write_text(json.dumps({"written_by": WRITER,
+                                            "files": own_files(n_top, drawn),
+                                            **({"scale": scale} if scale else {})},
                                            indent=1) + "\n")
     return out_dir
 
@@ -145,7 +159,8 @@ def _out_dir(out_dir, force: bool, n_top: int) -> Path:
 def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, seed: int,
            n_top: int, n_random: int, replicas: int, store=None, l0_um: float | None = None,
            solver: str | None = None, your_moulds=(), force: bool = False,
-           progress: bool | None = None, keep=(), say=None) -> pd.DataFrame:
+           progress: bool | None = None, keep=(), say=None,
+           fit_scale: float = 1.0) -> pd.DataFrame:
     """Search, confirm and hand over (module docstring); returns the summary row. The
     numbers have one home, the workflow config's `design:` defaults (the packaged schema),
     which the workflow and the CLI pass. Every
@@ -154,7 +169,11 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
     the same way, predicted and simulated, into your_moulds.csv: the designs to beat, and drawn
     first in figures/designs.png. `keep`: "footprint" and/or "posts" of the first of them
     constrain the search (condor.design.constrained_space). `say`: called with one line as
-    each phase starts (progress where no bar shows, e.g. not on a terminal)."""
+    each phase starts (progress where no bar shows, e.g. not on a terminal). `fit_scale`: the
+    factor your (first) mould's drawing was placed at (condor.moulds.place.Placement.scale):
+    the designs are also written at your drawing's size (design_NN_drawn.*), and the scale is
+    recorded in summary.csv and condor_design.json. Your moulds are simulated with at least
+    YOURS_MIN_REPLICAS replicas."""
     say = say or (lambda line: log.info("%s", line))
     predictor = Predictor(checkpoint, device="cpu")
     if predictor.native != scene.pixels or predictor.box is None or \
@@ -166,16 +185,23 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
         raise DesignOutputError(f"--keep {','.join(keep)} needs your mould (--mould)")
     space = constrained_space(scene, your_moulds[0], keep, parsed) if keep else \
         default_space(scene, parsed)
-    out = _out_dir(out_dir, force, n_top)
+    scale = {"fit_scale": float(fit_scale), "drawn_scale": 1.0 / float(fit_scale),
+             "l0_um": None if l0_um is None else float(l0_um),
+             "means": "the designs were searched and simulated at the placed size; "
+                      "design_NN_drawn.* are at your drawing's size, 1 / fit_scale times it"}
+    out = _out_dir(out_dir, force, n_top, scale)
     spread_factor, spread_note = objective_spread_factor(parsed, predictor)
     say(spread_note)
     yours = None
     if your_moulds:
+        yours_replicas = max(replicas, YOURS_MIN_REPLICAS)
         say(f"phase 1/4: your {len(your_moulds)} mould(s): predicting and simulating "
-            f"{replicas} replica(s) each")
-        table, yours = _score_your_moulds(parsed, list(your_moulds), scene, predictor, replicas,
-                                          seed, solver, progress)
+            f"{yours_replicas} replicas each (at least {YOURS_MIN_REPLICAS}: their +- is "
+            "measured)")
+        table, yours = _score_your_moulds(parsed, list(your_moulds), scene, predictor,
+                                          yours_replicas, seed, solver, progress)
         table["predicted_spread"] *= spread_factor
+        table["fit_scale"] = float(fit_scale)
         table.to_csv(out / "your_moulds.csv", index=False)
     constraint = f", keeping your mould's {' and '.join(keep)}" if keep else ""
     say(f"phase 2/4: searching {budget} designs with the surrogate{constraint}")
@@ -190,24 +216,55 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
         f"simulation, {replicas} replica(s) each")
     confirmation = confirm_designs(result, scene, n_top=n_top, n_random=n_random, replicas=replicas,
                            baseline=baseline, solver=solver, progress=progress)
+    top = confirmation.table[confirmation.table["role"] == "top"]
+    if len(top) < n_top:
+        say(f"only {len(top)} of the {n_top} best designs are distinct by the rule (footprints "
+            f"differing in {DISTINCT_FOOTPRINT:.0%} of their pixels, or posts in "
+            f"{DISTINCT_POSTS:.0%}): {len(top)} confirmed and drawn")
     table = design_table(result, confirmation, n=max(n_top, 10))
     table.to_csv(out / "designs.csv", index=False)
     confirmation.summary["spread_factor"] = spread_factor
+    confirmation.summary["n_top_distinct"] = len(top)
+    confirmation.summary["fit_scale"] = float(fit_scale)
+    confirmation.summary["l0_um"] = np.nan if l0_um is None else float(l0_um)
     confirmation.summary.to_csv(out / "summary.csv", index=False)
     result.history.to_csv(out / "search_history.csv", index=False)
     say("phase 4/4: drawings, predictions and figures")
-    best = [int(d) for d in table["design"].head(n_top)]
+    best = [int(d) for d in top.sort_values("rank")["design"]]  # the confirmed best, distinct
     moulds = result.moulds(best)
     for k, mould in enumerate(moulds, 1):
         save_json(mould, out / f"design_{k:02d}.json")
         write_svg(mould, out / f"design_{k:02d}.svg", l0_um=l0_um)
         write_dxf(mould, out / f"design_{k:02d}.dxf", l0_um=l0_um)
+        if fit_scale != 1.0:
+            _write_drawn(mould, out, k, fit_scale, l0_um)
     cells = [build_lattice(m.polygon, m.tethers, scene.depth).n_cells for m in moulds]
     predicted = predict_designs(parsed, moulds, predictor, n_cells=cells)
     _write_predictions(out / "predictions.zarr", predicted, scene, best)
-    _figures(out / "figures", table, confirmation, result, predicted, objective, yours)
+    simulated = dict(zip(confirmation.table["design"], confirmation.table["simulated_objective"]))
+    _figures(out / "figures", table, confirmation, result, predicted, objective, yours,
+             [simulated.get(d, np.nan) for d in best])
     log.info("\n%s", confirmation.summary.to_string(index=False))
     return confirmation.summary
+
+
+def _write_drawn(mould, out: Path, k: int, fit_scale: float, l0_um) -> None:
+    """Design k at the size of your drawing (scaled back by 1 / fit_scale): JSON (a minimal
+    outline file, in mm given l0_um, else l0), SVG and DXF, each stating the scale."""
+    drawn = drawn_mould(mould, fit_scale)
+    note = (f"At your drawing's size: design_{k:02d} (as searched and simulated) scaled by "
+            f"1/{fit_scale:.4g} = {1 / fit_scale:.4g}" + (f", l0 = {l0_um:g} um" if l0_um else ""))
+    write_svg(drawn, out / f"design_{k:02d}_drawn.svg", l0_um=l0_um, note=note)
+    write_dxf(drawn, out / f"design_{k:02d}_drawn.dxf", l0_um=l0_um, note=note)
+    factor = 1.0 if l0_um is None else float(l0_um) / 1000.0  # l0 -> mm
+    ring = np.asarray(drawn.polygon.exterior.coords)[:-1] * factor
+    outline = {"outline": ring.tolist(),
+               "holes": [(np.asarray(h.coords)[:-1] * factor).tolist()
+                         for h in drawn.polygon.interiors],
+               "tethers": (np.asarray(drawn.tethers).reshape(-1, 3) * factor).tolist(),
+               "units": "l0" if l0_um is None else "mm",
+               "comment": note + f"; read it back with --fit to place it as design_{k:02d}"}
+    (out / f"design_{k:02d}_drawn.json").write_text(json.dumps(outline))
 
 
 def checkpoint_design_scene(checkpoint) -> Scene:
@@ -226,8 +283,13 @@ def summary_lines(summary, out_dir, n_top: int, objective: str, store=None,
                   mould_paths=()) -> list[str]:
     """What `condor design` prints of its run: the files, the best confirmed design and the
     rank correlation, the dataset's best test mould, and each of your moulds against the best."""
-    lines = [f"{out_dir}: designs.csv, summary.csv, design_01..{n_top:02d} .json/.svg/.dxf, "
-             "predictions.zarr, figures/",
+    shown = int(summary.get("n_top_distinct", n_top))
+    scale = float(summary.get("fit_scale", 1.0))
+    drawn = (f"; design_01..{shown:02d}_drawn .json/.svg/.dxf at your drawing's size (the "
+             f"designs scaled by 1/{scale:.4g} = {1 / scale:.4g})" if scale != 1.0 else "")
+    lines = [f"{out_dir}: designs.csv, summary.csv, design_01..{shown:02d} .json/.svg/.dxf "
+             f"(the {shown} best distinct designs, each simulated){drawn}, predictions.zarr, "
+             "figures/",
              f"best confirmed design: simulated {summary['best_simulated']:.4g}; Spearman rho "
              f"{summary['spearman']:.2f} [{summary['spearman_low']:.2f}, "
              f"{summary['spearman_high']:.2f}] over {int(summary['n'])} confirmed designs"]
@@ -236,8 +298,11 @@ def summary_lines(summary, out_dir, n_top: int, objective: str, store=None,
                      f"(improvement {summary['improvement']:+.4g})")
     if mould_paths:
         table = pd.read_csv(Path(out_dir) / "your_moulds.csv")
-        lines += [f"yours {row.simulated_objective:.3g} +- {row.simulated_objective_std:.2g} "
-                  f"(predicted {row.predicted_objective:.3g} +- {row.predicted_spread:.2g}) -> "
+        lines += [f"yours {row.simulated_objective:.3g} +- "
+                  f"{row.simulated_objective_std / np.sqrt(row.n_ok):.2g} (the mean of "
+                  f"{row.n_ok} simulations +- its standard error; one simulation scatters +- "
+                  f"{row.simulated_objective_std:.2g}; predicted {row.predicted_objective:.3g} "
+                  f"+- {row.predicted_spread:.2g}, one simulation's predicted spread) -> "
                   f"best {summary['best_simulated']:.3g} simulated: {objective} "
                   f"{summary['best_simulated'] - row.simulated_objective:+.3g} "
                   f"(mould {row.mould}, {mould_paths[row.mould - 1]})"
@@ -304,7 +369,7 @@ def _write_predictions(path: Path, predicted, scene: Scene, designs) -> None:
 
 
 def _figures(folder: Path, table, confirmation, result, predicted, objective: str,
-             yours=None) -> None:
+             yours=None, simulated=()) -> None:
     plots.design_confirmation(confirmation.table, confirmation.summary,
                               folder / "confirmation.png", title=objective)
     plots.design_search_history(result.history, folder / "search_history.png")
@@ -318,7 +383,10 @@ def _figures(folder: Path, table, confirmation, result, predicted, objective: st
             if prediction.spread is not None:
                 images += [("Sx2 spread", prediction.spread[k][2])]
             value = prediction.table["objective"].iloc[k]
-            rows.append((f"{label} {k + 1} ({value:.3g})", images))
+            sim = f", sim. {simulated[k]:.3g}" if label == "design" and k < len(simulated) \
+                and np.isfinite(simulated[k]) else ""
+            rows.append((f"{label} {k + 1}\n(pred. {value:.3g}{sim})", images))
     plots.image_grid(rows, folder / "designs.png", f"{'your moulds and ' if shown else ''}the "
-                     f"best designs for {objective} (predicted objective in brackets): "
-                     "predicted fields and reproducibility", cmaps={"mould": "Greys"})
+                     f"best distinct designs for {objective} (predicted and simulated "
+                     "objective in brackets): predicted fields and reproducibility",
+                     cmaps={"mould": "Greys"})

@@ -1,8 +1,9 @@
 """The predict stage (`condor predict`): one mould's fields from a checkpoint, with what a user
 reads beside them.
 
-`predict_mould` places a mould file (JSON, SVG or DXF) in the checkpoint's scene, or reads a
-picture of its input channels; warns where the mould lies outside the training moulds and
+`predict_mould` places a mould file (JSON, SVG, DXF, or a picture of the mould: PNG, TIFF,
+JPEG, vectorised by condor.moulds.read_picture) in the checkpoint's scene, or reads its input
+channels as a .npy array; warns where the mould lies outside the training moulds and
 gives the domain verdict measured outside the run (condor.findings' out-of-domain table);
 predicts the fields and their spread; summarises the whole mould's statistics with one
 simulation's predicted spread, calibrated by the spread factors measured outside the run (the
@@ -25,9 +26,11 @@ from condor.model.scenes import PRESETS, Scene, same_length
 from condor.moulds.domain import training_domain_check
 from condor.moulds.mould import input_channels
 from condor.moulds.read import load_placement
+from condor.moulds.read_picture import PICTURE_SUFFIXES
 from condor.surrogate.modes import DEFAULT_PRECISION
 
-MOULD_FILES = (".json", ".svg", ".dxf")  # a mould itself; anything else is a picture of it
+# a mould itself (a picture is read as one: condor.moulds.read_picture); a .npy is its masks
+MOULD_FILES = (".json", ".svg", ".dxf") + PICTURE_SUFFIXES
 OUTPUTS = (".zarr", ".png")
 
 
@@ -71,10 +74,11 @@ class PredictedMould:
 def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=None,
                   units: str | None = None, device=None, mode: str | None = None,
                   precision: str = DEFAULT_PRECISION, force: bool = False, check: int = 0,
-                  say=print, warn=print) -> PredictedMould:
-    """Predict mould `mould` (a mould file, or its input channels as a .npy or .png) with
-    `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`: how a drawing is
-    read and placed (condor.moulds.read.load_placement); `check`: simulate the mould that many
+                  picture=None, say=print, warn=print) -> PredictedMould:
+    """Predict mould `mould` (a mould file or a picture of it, or its input channels as a
+    .npy) with `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`,
+    `picture` (condor.moulds.read_picture.PictureOptions): how a drawing or a picture is read
+    and placed (condor.moulds.read.load_placement); `check`: simulate the mould that many
     times and score the prediction against them (condor.stages.check; a mould file only);
     `say(line)`: how it was read, and each check simulation; `warn(line)`: each warning.
     Nothing that exists is replaced without `force`, and never a dataset store or a folder
@@ -89,7 +93,8 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
     placement, verdict, novelty = None, None, None
     if Path(mould).suffix.lower() in MOULD_FILES:
         scene = checkpoint_scene(predictor)
-        placement = load_placement(mould, scene, l0_um=l0_um, fit=fit, units=units)
+        placement = load_placement(mould, scene, l0_um=l0_um, fit=fit, units=units,
+                                   picture=picture)
         say(f"{mould}: {placement.describe()}")
         for warning in training_domain_check(placement.mould, scene, training_ranges(bank)):
             warn(warning)
@@ -97,15 +102,19 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
             verdict = mould_domain_verdict(placement.mould, scene)
     if check and placement is None:
         raise PredictError(f"--check simulates the mould, which needs its geometry: give "
-                           f"{mould} as a JSON, SVG or DXF mould file, not a picture")
+                           f"{mould} as a mould file or a picture of it (JSON, SVG, DXF, PNG, "
+                           "TIFF, JPEG), not its masks")
     inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
     if bank is not None:
         verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
-    table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn)
+    scale = placement.scale if placement is not None else 1.0
+    table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale)
     if out.suffix.lower() == ".png":
         plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
-                                symmetrised=bool(predictor.symmetrise))
+                                pixel_size=predictor.pixel_size, l0_um=l0_um, scale=scale,
+                                title=f"{Path(mould).name}: predicted organisation, "
+                                      f"{float(prediction.n_cells):.0f} cells")
     else:
         from condor.surrogate.prediction_zarr import write_prediction
 
@@ -114,7 +123,7 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
         if novelty is not None:
             attrs["novelty"] = novelty
         write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
-                         l0_um=l0_um)
+                         l0_um=l0_um, scale=scale)
     checked = None
     if check:
         from condor.stages.check import check_prediction
@@ -203,8 +212,8 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, 
 
 
 def mould_inputs(predictor, mould, placement, warn) -> tuple:
-    """(inputs, n_cells, lattice) the network reads: a placed mould's exact ones, or a
-    picture's masks (N_c then estimated, and the lattice channels with a warning)."""
+    """(inputs, n_cells, lattice) the network reads: a placed mould's exact ones, or the
+    masks of a .npy (N_c then estimated, and the lattice channels with a warning)."""
     from condor.surrogate.answer import MASK_ONLY_MEASURED
     from condor.surrogate.pictures import read_mould_inputs
 
@@ -218,17 +227,19 @@ def mould_inputs(predictor, mould, placement, warn) -> tuple:
     if not inputs.any():
         raise PredictError(f"{mould} holds no mould pixel: nothing to predict")
     if predictor.needs_lattice and lattice is None:
-        warn(f"{mould} is a picture: the lattice channels this checkpoint reads are estimated "
-             "from its pixels, which measured much worse than a mould file's geometry: "
-             f"{MASK_ONLY_MEASURED}. Give the mould as JSON, SVG or DXF for the exact channels")
+        warn(f"{mould} holds masks: the lattice channels this checkpoint reads are estimated "
+             "from its pixels, which measured much worse than a mould's geometry: "
+             f"{MASK_ONLY_MEASURED}. Give the mould as JSON, SVG, DXF or a picture of it "
+             "(PNG, TIFF, JPEG: read as a mould) for the exact channels")
         lattice = predictor.estimate_lattice(inputs)
     return inputs, n_cells, lattice
 
 
-def statistics_with_spread(predictor, prediction, inputs, l0_um, warn) -> tuple:
+def statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale: float = 1.0) -> tuple:
     """The whole-mould statistics with one simulation's predicted spread (None without the
     checkpoint's pixel size), and the note on that spread's calibration (None when the
-    checkpoint predicts no spread)."""
+    checkpoint predicts no spread); `scale`: the drawing's placement factor (areas in mm^2
+    are the drawn mould's)."""
     from condor.design.search import prediction_spread
     from condor.surrogate.answer import mould_summary, spread_calibration
     from condor.surrogate.calibration import tissue_pixels
@@ -248,7 +259,8 @@ def statistics_with_spread(predictor, prediction, inputs, l0_um, warn) -> tuple:
             warn(warning)
     table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size, spread,
                           tissue=tissue_pixels(inputs[None])[0],
-                          sigma_px=predictor.sigma / pixel_size, l0_um=l0_um, factors=factors)
+                          sigma_px=predictor.sigma / pixel_size, l0_um=l0_um, factors=factors,
+                          scale=scale)
     return table, calibrated
 
 

@@ -9,8 +9,9 @@ dataset solver's own "single simulation" and "mean of k simulations") this modul
   bootstrap interval over moulds, the plain (uncorrected) error, per-field errors and the CPU
   seconds per mould. The row "single simulation" is the noise ceiling: what one run of the
   dataset's solver scores.
-- `statistics` rows: for each whole-mould statistic of the paper, the method's Pearson r
-  against the expected statistic (the replica mean's noise removed; `r_plain`: against the
+- `statistics` rows: for each whole-mould statistic (STATISTICS: condor's, as `condor predict`
+  names them, condor.data.fields.MOULD_STATISTICS, then the paper's that condor has no name
+  for), the method's Pearson r against the expected statistic (the replica mean's noise removed; `r_plain`: against the
   replica mean as it is) with its interval and n, the ceiling r a perfect predictor reaches
   against one simulation, the bias (median of method / replica mean - 1) and the paper's r.
 
@@ -27,7 +28,7 @@ import numpy as np
 import pandas as pd
 
 from condor.measures import estimators as est
-from condor.data.fields import FIELD_NAMES, STATISTICS, normalise
+from condor.data.fields import FIELD_NAMES, mould_summary_statistics, normalise
 from condor.measures.metrics import normalise_predicted, paper_r, statistics_frame
 from condor.surrogate.calibration import interval_coverage, spread_agreement, tissue_pixels
 
@@ -38,6 +39,16 @@ STATISTICS_COLUMNS = ("method", "family", "statistic", "n", "r", "r_lo", "r_hi",
                       "r_plain_lo", "r_plain_hi", "r_ceiling", "bias", "bias_lo", "bias_hi",
                       "informative", "paper_r", "paper_relation")
 HELD_OUT = ((1, "single simulation"), (2, "mean of 2 simulations"), (4, "mean of 4 simulations"))
+
+# The statistics the tables score, in one vocabulary (docs/fields.md, "Whole-mould
+# statistics"): condor's, under the names `condor predict` prints (direction, an angle, has no
+# r), then the paper's that condor has no name for. Two of the paper's are condor's under
+# another name and unit (PAPER_NAME): the paper's r is compared on them as the paper's.
+STATISTICS = ("alignment", "alignment_x", "mean_tension", "tissue_area", "mean_P", "mean_T",
+              "mean_Sx2", "mean_Sx2_norm", "mean_Sy2", "mean_Sy2_norm")
+PAPER_NAME = {"mean_tension": "mean_T_norm", "tissue_area": "n_P_gt_0.2"}  # the paper's name
+NOT_THE_PAPERS = ("alignment", "alignment_x")  # no paper r
+SIGNED = ("alignment_x",)  # its bias, a ratio to a value about 0, means nothing: NaN
 
 
 @dataclass(frozen=True)
@@ -96,9 +107,22 @@ def _normalised(answer: Answer, n_cells: np.ndarray) -> np.ndarray:
 
 
 def statistics_of(raw: np.ndarray, pixel_size: float, n_cells) -> np.ndarray:
-    """(M, n_statistics) of raw fields (M, 8, H, W); n_cells None: own density sums."""
-    return np.array(statistics_frame(raw, pixel_size, n_cells=n_cells)[list(STATISTICS)],
-                    dtype=np.float64)
+    """(M, len(STATISTICS)) of raw fields (M, 8, H, W); n_cells None: own density sums.
+    condor's statistics (condor.data.fields.mould_summary_statistics) of the fields normalised
+    by N_c (or the density sum), the paper's (statistics_frame) beside them; NaN for a mould
+    whose fields are not finite."""
+    raw = np.asarray(raw)
+    paper = statistics_frame(raw, pixel_size, n_cells=n_cells)
+    ours = np.full((len(raw), len(STATISTICS)), np.nan)
+    for m, fields in enumerate(raw):
+        fields = np.asarray(fields, dtype=np.float64)
+        n = float(fields[0].sum()) if n_cells is None else float(np.asarray(n_cells)[m])
+        if not (np.isfinite(fields).all() and np.isfinite(n) and n > 0):
+            continue
+        values = mould_summary_statistics(normalise(fields, n), n, pixel_size)
+        for k, name in enumerate(STATISTICS):
+            ours[m, k] = values[name] if name in values else paper[name].iloc[m]
+    return ours
 
 
 def _error_row(method: str, family: str, cpu: float, err: est.SquaredError,
@@ -124,7 +148,10 @@ def _statistic_rows(method: str, family: str, answer_stats: np.ndarray,
         agreement = est.statistic_agreement(answer_stats[keep, k], replica_stats[keep][:, :, k],
                                             seed=seed) if keep.sum() >= 2 else \
             {"n": int(keep.sum()), "informative": False}
-        reference, relation = paper_r(name)
+        if name in SIGNED:
+            agreement.update(bias=np.nan, bias_lo=np.nan, bias_hi=np.nan)
+        reference, relation = ((np.nan, "") if name in NOT_THE_PAPERS else
+                               paper_r(PAPER_NAME.get(name, name)))
         rows.append({"method": method, "family": family, "statistic": name, **agreement,
                      "paper_r": reference, "paper_relation": relation})
     return rows

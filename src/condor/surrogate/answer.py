@@ -2,8 +2,9 @@
 predicted spread of one simulation about it, and where the mould sits against the training
 moulds (docs/user_moulds.md, "What predict prints").
 
-The statistics are ratios of sums over the normalised fields (condor.design.objectives), so
-they read the same at any normalisation:
+The statistics (computed by `statistics`, which is condor.data.fields.mould_summary_statistics,
+their one home; docs/fields.md defines each once) are ratios of sums over the normalised
+fields (condor.design.objectives), so they read the same at any normalisation:
 
   alignment      in-plane nematic order of the whole mould along its principal direction:
                  |(sum(Sx2 - Sy2), 2 sum SxSy)| / sum(Sx2 + Sy2), in [0, 1] (0 isotropic, 1
@@ -38,9 +39,10 @@ import math
 import numpy as np
 import pandas as pd
 
-from condor.data.fields import DENSITY_THRESHOLD, FIELD_NAMES, PAPER_PIXEL_SIZE
+from condor.data.fields import FIELD_NAMES, MOULD_STATISTICS, STATISTIC_UNITS
+from condor.data.fields import mould_summary_statistics as statistics  # one home: data.fields
 
-_P, _T, _SX2, _SY2, _SXSY = (FIELD_NAMES.index(n) for n in ("P", "T", "Sx2", "Sy2", "SxSy"))
+_P = FIELD_NAMES.index("P")
 
 # The mask-only path (a picture: lattice channels estimated from its pixels) against the
 # mould's geometry, measured on the default run's 100 test moulds (issue 32): the bias of the
@@ -51,35 +53,13 @@ MASK_ONLY_MEASURED = ("mean tension biased by -9% [-16, -4] and its r 0.93 over 
 SUMMARY_DRAWS = 64  # Monte Carlo draws of the spread of each statistic
 # The statistics with a drawn spread, each with its own calibration factor (tissue_area_mm2
 # takes tissue_area's).
-SPREAD_STATISTICS = ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
-
-
-def _sums(f: np.ndarray):
-    """(along x, 2 SxSy, in-plane, T, P) sums over the grid of normalised fields (..., 8, H, W)."""
-    total = f.sum(axis=(-2, -1))
-    return (total[..., _SX2] - total[..., _SY2], 2 * total[..., _SXSY],
-            total[..., _SX2] + total[..., _SY2], total[..., _T], total[..., _P])
-
-
-def statistics(normalised: np.ndarray, n_cells: float, pixel_size: float) -> dict:
-    """The whole-mould statistics (module docstring) of one mould's normalised fields
-    (8, H, W); n_cells: N_c (to undo the normalisation for the area); pixel_size: l0."""
-    f = np.asarray(normalised, dtype=np.float64)
-    along, shear, in_plane, tension, density = _sums(f)
-    raw_density = f[_P] * float(n_cells) / f[_P].size  # cells per grid pixel
-    per_paper_pixel = (PAPER_PIXEL_SIZE / pixel_size) ** 2
-    area = np.count_nonzero(raw_density * per_paper_pixel > DENSITY_THRESHOLD) * pixel_size ** 2
-    return {"alignment": math.hypot(along, shear) / in_plane if in_plane > 0 else math.nan,
-            "direction": 0.5 * math.degrees(math.atan2(shear, along)),
-            "alignment_x": along / in_plane if in_plane > 0 else math.nan,
-            "mean_tension": tension / density if density > 0 else math.nan,
-            "tissue_area": float(area)}
+SPREAD_STATISTICS = MOULD_STATISTICS  # ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
 
 
 def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
                   tissue=None, sigma_px: float | None = None, l0_um: float | None = None,
                   draws: int = SUMMARY_DRAWS, seed: int = 0,
-                  factors: dict | None = None) -> pd.DataFrame:
+                  factors: dict | None = None, scale: float = 1.0) -> pd.DataFrame:
     """One row per statistic: `statistic`, `value`, `spread` (the predicted standard deviation
     of one simulation's statistic; NaN without a reproducibility map), `unit`.
 
@@ -87,7 +67,9 @@ def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
     the pixels over which the reproducibility is averaged (default: the mould's, P > 0);
     sigma_px: the fields' kernel width in pixels (for the spread's draws); factors: each of
     SPREAD_STATISTICS' calibration factor (check_spread_factors; `spread_factors` of the
-    findings' table), multiplying its drawn spread; None: the draws' spreads as they are."""
+    findings' table), multiplying its drawn spread; None: the draws' spreads as they are.
+    scale: the factor a user's drawing was placed at (--fit): tissue_area_mm2 is the drawn
+    mould's, tissue_area / scale^2 (tissue_area in l0^2 stays the simulated mould's)."""
 
     if factors is not None:
         factors = check_spread_factors(factors)
@@ -106,16 +88,13 @@ def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
                 spreads[name] = float(np.std([row[name] for row in drawn], ddof=1))
             if factors is not None:
                 spreads[name] *= factors[name]
-    area_unit = "l0^2"
-    rows = [("alignment", values["alignment"], spreads["alignment"], "0..1"),
-            ("direction", values["direction"], spreads["direction"], "deg from x"),
-            ("alignment_x", values["alignment_x"], spreads["alignment_x"], "-1..1"),
-            ("mean_tension", values["mean_tension"], spreads["mean_tension"], "T units"),
-            ("tissue_area", values["tissue_area"], spreads["tissue_area"], area_unit)]
+    rows = [(name, values[name], spreads[name], STATISTIC_UNITS[name]) for name in MOULD_STATISTICS]
     if l0_um is not None:
-        mm2 = (float(l0_um) / 1000.0) ** 2
+        mm2 = (float(l0_um) / 1000.0 / float(scale)) ** 2
         rows.append(("tissue_area_mm2", values["tissue_area"] * mm2,
-                     spreads["tissue_area"] * mm2, "mm^2"))
+                     spreads["tissue_area"] * mm2,
+                     "mm^2" + (f", at the drawn size (placed at {scale:.4g}x)"
+                               if scale != 1.0 else "")))
     if spread is not None:
         mask = normalised[_P] > 0 if tissue is None else np.asarray(tissue, bool)
         spread = np.asarray(spread, dtype=np.float64)

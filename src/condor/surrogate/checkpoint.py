@@ -65,6 +65,11 @@ def load_checkpoint(path, map_location="cpu") -> dict:
     """Read a checkpoint; CheckpointNotFoundError when absent, CheckpointError when it is not
     a condor surrogate checkpoint."""
     path = Path(path)
+    if path.is_dir():
+        found = sorted(p.name for p in path.glob("*.pt"))[:3]
+        raise CheckpointNotFoundError(
+            f"surrogate checkpoint {str(path)!r} is a folder, not a checkpoint file (.pt)"
+            + (f": it holds {', '.join(found)}" if found else ""))
     if not path.is_file():
         raise CheckpointNotFoundError(f"surrogate checkpoint {str(path)!r} does not exist "
                                       "(train a model first)")

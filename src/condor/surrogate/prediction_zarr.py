@@ -22,10 +22,12 @@ FIELD_LONG_NAMES = {
     "z-mirror symmetry)"}
 
 
-def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = None) -> dict:
+def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = None,
+                     scale: float = 1.0) -> dict:
     """CF coordinates x and y of an n-pixel grid: pixel centres in mm given l0_um (with
     x_l0, y_l0 beside them), else in l0 (in pixels when pixel_size is None); each with
-    units, long_name, standard_name and axis."""
+    units, long_name, standard_name and axis. `scale`: the factor the user's drawing was
+    placed at (--fit): the mm are the drawing's, l0 / scale."""
     step = 1.0 if pixel_size is None else float(pixel_size)
     centres = (np.arange(n) + 0.5) * step
     unit = "pixel" if pixel_size is None else "l0"
@@ -33,10 +35,12 @@ def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = Non
     for axis in ("x", "y"):
         base = {"standard_name": f"projection_{axis}_coordinate", "axis": axis.upper()}
         if l0_um is not None and pixel_size is not None:
-            coords[axis] = (axis, centres * float(l0_um) / 1000.0,
+            drawn = (f"; at the drawing's size: the mould was placed scaled by {scale:.4g}"
+                     if scale != 1.0 else "")
+            coords[axis] = (axis, centres * float(l0_um) / 1000.0 / scale,
                             {**base, "units": "mm", "long_name": f"{axis} of the pixel centre "
                              f"from the box's {'left' if axis == 'x' else 'lower'} edge "
-                             f"(l0 = {float(l0_um):g} um)"})
+                             f"(l0 = {float(l0_um):g} um{drawn})"})
             coords[f"{axis}_l0"] = (axis, centres, {"units": "l0", "long_name": f"{axis} in "
                                     "cell spacings l0"})
         else:
@@ -47,7 +51,8 @@ def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = Non
 
 
 def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
-                       attrs: dict | None = None, l0_um: float | None = None):
+                       attrs: dict | None = None, l0_um: float | None = None,
+                       scale: float = 1.0):
     """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
     (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); x/y pixel
     centres (grid_coordinates: in mm given l0_um, else l0; pixels when pixel_size is None),
@@ -72,7 +77,7 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
                                                "around the expected (raw) field, per pixel"})
     coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
               "channel": ("channel", ["mould", "tether"], {"long_name": "input channel"}),
-              **grid_coordinates(n, pixel_size, l0_um)}
+              **grid_coordinates(n, pixel_size, l0_um, scale)}
     length_unit = "pixel" if pixel_size is None else ("mm" if l0_um is not None else "l0")
     return xr.Dataset(
         variables, coords=coords,
@@ -82,12 +87,13 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
 
 def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
                      pixel_size: float | None = None, attrs: dict | None = None,
-                     overwrite: bool = False, l0_um: float | None = None) -> None:
+                     overwrite: bool = False, l0_um: float | None = None,
+                     scale: float = 1.0) -> None:
     """Write a prediction as a .zarr store (xarray, see prediction_dataset); an existing one is
     replaced only with `overwrite`."""
     path = Path(path)
     if path.suffix.lower() != ".zarr":
         raise ValueError(f"prediction store {str(path)!r} must end in .zarr")
     with quiet_zarr():
-        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um).to_zarr(
+        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale).to_zarr(
             path, mode="w" if overwrite else "w-")
