@@ -29,6 +29,8 @@ EXPERIMENTS = sorted((REPO / "experiments").glob("*/*.py"))
 # must hold.
 SMOKE = {
     "bench_fields": (["--cells", "300", "--repeats", "1"], "ms"),
+    "bench_busy": (["--rounds", "1", "--steps", "1", "--competitors", "1", "--settings",
+                    "1-default"], "ratio"),
     "bench_simulator": (["--scene", "tiny", "--solvers", "lbfgs"], "lbfgs"),
     "bench_surrogate": (["--repeats", "1", "--batch", "2", "--threads", "1"], "s/mould"),
     "bench_design": (["--scene", "tiny", "--budget", "20", "--repeats", "1"], "designs"),

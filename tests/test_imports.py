@@ -130,3 +130,20 @@ def test_no_circular_imports():
         if node not in state:
             visit(node, [node])
     assert not circles, "\n".join(circles)
+
+
+def test_import_condor_makes_openmp_threads_sleep_unless_told_otherwise():
+    """`import condor` sets OMP_WAIT_POLICY=PASSIVE before torch or numba load the OpenMP
+    runtime (benchmarks/bench_busy.py: spinning threads lose their cores beside other work),
+    and keeps a value the environment already holds."""
+    import os
+    import subprocess
+    import sys
+
+    code = "import os, condor; print(os.environ['OMP_WAIT_POLICY'])"
+    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
+    unset = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                           text=True, check=True).stdout.strip()
+    kept = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
+                          capture_output=True, text=True, check=True).stdout.strip()
+    assert (unset, kept) == ("PASSIVE", "ACTIVE")
