@@ -99,13 +99,13 @@ def main(argv=None) -> int:
     rows = []
     for name, spec in study.models(ds, a.lab_share).items():
         checkpoints = sorted(a.cache.glob(f"{name}_*.pt"))
-        if not checkpoints:
+        mine = per[per["model"] == name]
+        if not checkpoints or mine.empty:
             continue
         predictor = Predictor(checkpoints[-1], device="cpu", precision="float32")
-        held = None if spec["held_out"] == "none" else spec["held_out"]
+        held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
         train_ids = study.choose(ds, "train", study.N_TRAIN, spec["lab_share"], held)
         bank = scores_of(predictor, ds, train_ids, a.cache, "train")
-        mine = per[per["model"] == name]
         for group, store in (("pool", ds), ("fresh", fresh)):
             subset = mine[mine["family"].eq(study.FRESH) == (group == "fresh")]
             if subset.empty:
@@ -120,7 +120,7 @@ def main(argv=None) -> int:
         log(f"novelty of {name}")
     table = pd.concat(rows, ignore_index=True)
     table["bad"] = table["squared_error"] > table["noise"]
-    table["held_out_mould"] = table["family"] == table["held_out"]
+    table["held_out_mould"] = [f in h.split("+") for f, h in zip(table["family"], table["held_out"])]
     table.to_csv(a.out / "novelty_moulds.csv", index=False)
     summary = []
     for scope, frame in (("every model x test mould", table),

@@ -495,7 +495,7 @@ def short_verdict(verdict: str | None) -> list[str]:
 
     if not verdict:
         return []
-    first = verdict.split(". ")[0]
+    first = verdict.splitlines()[0].split(". ")[0]
     first = re.sub(r"\s*\([^()]*(\([^()]*\)[^()]*)*\)", "", first).strip()
     first = first.replace("the training domain ", "").replace("training domain ", "")
     if len(first) > 110:
