@@ -43,7 +43,7 @@ PRESETS = MappingProxyType({
         "n_dropout": 0, "lr_schedule": "cosine",  # the recipe study: T field error -20%
         # experiments/generalisation: on 250 moulds half from the lab families, 120 epochs
         # against 60 took the paper test moulds from 0.80x to 0.70x one simulation's scatter,
-        # a fresh generator seed's from 0.73x to 0.61x, the worst lab family from 1.68x to 1.36x
+        # a fresh generator seed's from 0.73x to 0.61x, the worst lab family from 1.68x to 1.35x
         "epochs": 120,
         "batch_size": 8, "lr": 0.002,
         "betas": (0.9, 0.999),              # "Adam's momentum": not the paper's GAN 0.5
