@@ -142,7 +142,7 @@ def main(argv=None) -> int:
 
 
 def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
-    """The product's calibration of `score` (condor.surrogate.novelty.CALIBRATION_COLUMNS): per
+    """The product's calibration of `score` (condor.findings.NOVELTY_COLUMNS): per
     quantile bin of the score, the error over one simulation's scatter (median, 10-90%) and the
     share above 1; and the threshold that catches at least 90% of the moulds above it with the
     fewest false alarms (else the best balance of the two), with its rates."""

@@ -58,14 +58,30 @@ OUT_OF_DOMAIN_COLUMNS = ("kind", "outside_on", "description", "n_moulds", "repli
 # .spread_factors) and the checkpoint it was fitted for.
 SPREAD_CALIBRATION_COLUMNS = ("statistic", "factor", "factor_lo", "factor_hi", "n_moulds",
                               "replicas", "weights_sha256")
+# The novelty score's calibration (condor.surrogate.novelty.novelty_verdict; fitted by
+# experiments/generalisation/novelty.py on the families held out): per score bin, the measured
+# error over one simulation's scatter (median and 10-90% range) and the share above 1; the
+# finding's values hold the `threshold` above which a mould is called outside.
+NOVELTY_COLUMNS = ("score_lo", "score_hi", "n_moulds", "ratio_median", "ratio_lo", "ratio_hi",
+                   "share_above_ceiling")
+# Generalisation to lab families held out of training (issue 41's table, docs/data/
+# generalisation.csv): per family scored, the model's error against the expected fields with
+# its 95% interval, the family's noise ceiling, and the mean tension bias with its interval.
+GENERALISATION_COLUMNS = ("family", "held_out", "n_moulds", "replicas", "error", "error_lo",
+                          "error_hi", "noise_ceiling", "tension_bias", "tension_bias_lo",
+                          "tension_bias_hi")
 TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS,
-                 "spread_calibration": SPREAD_CALIBRATION_COLUMNS}
+                 "spread_calibration": SPREAD_CALIBRATION_COLUMNS,
+                 "novelty": NOVELTY_COLUMNS, "generalisation": GENERALISATION_COLUMNS}
+# Values a finding must state, for the findings the product reads by key.
+VALUE_KEYS = {"novelty": ("threshold", "score")}
 
 
 def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
     """Every finding of `path` by key; ValueError naming a finding that lacks its provenance,
-    whose table is missing, or whose table lacks a column the product reads (TABLE_COLUMNS;
-    the out-of-domain table also needs its "inside" row)."""
+    whose table is missing, whose table lacks a column the product reads (TABLE_COLUMNS;
+    the out-of-domain table also needs its "inside" row), or that lacks a value the product
+    reads (VALUE_KEYS)."""
     raw = json.loads(Path(path).read_text())
     folder = Path(path).resolve().parent
     findings = {}
@@ -88,6 +104,9 @@ def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
                                  f"{absent}")
             if key == "out_of_domain" and "inside" not in set(frame["kind"]):
                 raise ValueError(f"finding {key!r}: table {entry['table']!r} has no 'inside' row")
+        absent = [k for k in VALUE_KEYS.get(key, ()) if k not in entry.get("values", {})]
+        if absent:
+            raise ValueError(f"finding {key!r} lacks the values {absent}")
     return findings
 
 

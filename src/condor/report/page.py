@@ -368,8 +368,8 @@ def _lab_section(config, inp) -> Section | None:
         "The lab test set: moulds of the lab families (condor.moulds.lab: "
         f"{', '.join(config.lab_families())}), drawn as the training's lab moulds are but never "
         "trained on, scored against their own replicas' expected fields as the paper test set "
-        "is. How the surrogate does on a family it never saw at all is measured apart "
-        "(experiments/generalisation, docs/data/generalisation.csv)."),
+        "is. How the surrogate does on a family it never saw at all is measured apart, "
+        "outside the run: the finding on generalisation among the findings below."),
         table(errors[columns], "Surrogates and baselines on the lab test set: field error "
               "against the expected fields [95% interval] beside one simulation's.", digits=3)]
     if not families.empty:

@@ -182,13 +182,6 @@ def training_bank(model, inputs_kind: str, dataset, positions) -> dict:
 
 # --- what condor predict says of a mould ------------------------------------------------------
 
-# The calibration of the novelty score (condor.findings' "novelty" table, fitted by
-# experiments/generalisation/novelty.py on the held-out families): per score bin, the measured
-# error over one simulation's scatter (median and 10-90% range) and the share above 1.
-CALIBRATION_COLUMNS = ("score_lo", "score_hi", "n_moulds", "ratio_median", "ratio_lo",
-                       "ratio_hi", "share_above_ceiling")
-
-
 def bank_of(state: dict) -> dict | None:
     """The training bank a checkpoint carries (training_bank), as numpy; None for a checkpoint
     trained before it."""
