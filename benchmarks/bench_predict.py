@@ -107,7 +107,7 @@ def main() -> None:
         predictor = Predictor(path, device="cpu", symmetrise=True if args.symmetrise else None,
                               precision=args.precision)
     scene = checkpoint_scene(predictor)
-    moulds = [make_mould(scene, args.seed, i, MouldParams()) for i in range(args.moulds)]
+    moulds = [make_mould(scene, args.seed, i, params=MouldParams()) for i in range(args.moulds)]
     masks = np.stack([input_channels(m, predictor.native) for m in moulds])
     extra = predictor.mould_arguments(moulds)
     what = f"preset {args.random!r}, random weights" if args.random else args.checkpoint

@@ -261,15 +261,14 @@ def mould_store(tmp_path_factory):
     return config, path
 
 
-def test_mould_geometry_is_the_generators_to_the_last_bit_in_every_replica(mould_store):
-    from condor.moulds.paper import generate_mould
-
+def test_mould_geometry_is_its_sources_to_the_last_bit_in_every_replica(mould_store):
     config, path = mould_store
     ds = condor.open_dataset(path)
-    scene = config.scene
+    families = set()
     for sample in range(ds.sizes["sample"]):
         mould = int(ds["mould"].values[sample])
-        made = generate_mould(config.seed, mould, scene, params=config.mould_params())
+        made = config.make_mould(mould)  # the generator's or a lab family's (Config.sources)
+        families.add(made.family)
         polygon, tethers = dataset.mould_geometry(ds, sample)
         assert polygon.equals_exact(made.polygon, 0.0)
         np.testing.assert_array_equal(shapely.get_coordinates(polygon),
@@ -278,6 +277,7 @@ def test_mould_geometry_is_the_generators_to_the_last_bit_in_every_replica(mould
             [len(r.coords) for r in made.polygon.interiors]
         assert tethers.dtype == np.float64 and tethers.shape == (made.n_tethers, 3)
         np.testing.assert_array_equal(tethers, made.tethers)
+    assert "paper" in families and len(families) > 1, families  # both sources were checked
     again, _ = dataset.mould_geometry(path, 2)  # a path works too
     assert again.equals_exact(dataset.mould_geometry(ds, 2)[0], 0.0)
 

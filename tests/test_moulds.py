@@ -523,11 +523,13 @@ def test_a_hand_made_mould_needs_only_box_polygon_and_tethers(tmp_path):
 
 
 def test_generated_mould_json_is_unchanged():
-    """Every key a generated mould wrote before is written the same way (no nulls)."""
+    """Every key a generated mould wrote before is written the same way (no nulls), and its
+    source beside them (`family`, "paper" for the generator's: store format 6)."""
     d = M.generate_mould(4, 2, PAPER).to_dict()
     assert set(d) == {"mould_id", "seed", "symmetry", "order", "removal", "box", "polygon",
                       "tethers", "origin", "unpruned_tethers", "area_fraction",
-                      "convex_rounded", "concave_rounded", "outline"}
+                      "convex_rounded", "concave_rounded", "outline", "family"}
+    assert d["family"] == "paper"
     assert None not in d.values()
     assert isinstance(d["seed"], int) and d["area_fraction"] == 0.4
 

@@ -508,7 +508,7 @@ def test_a_store_of_an_older_format_is_refused_naming_what_it_lacks(tmp_path):
     root["attributes"]["format_version"] = FORMAT_VERSION - 1
     (path / "zarr.json").write_text(json.dumps(root))
     with pytest.raises(StoreError, match=f"format version {FORMAT_VERSION - 1}, this code reads "
-                       f"version {FORMAT_VERSION}.*mould geometry.*rebuild"):
+                       f"version {FORMAT_VERSION}.*family.*rebuild"):
         open_store(path)
 
 

@@ -240,3 +240,25 @@ def test_accuracy_tables_take_each_moulds_own_replicas():
     direct = (dx * dm).mean() / np.sqrt((dx * dx).mean() * ((dm * dm).mean()
                                                            - noise.mean() * 59 / 60))
     assert s.loc[("perfect", "mean_Sx2"), "r"] == pytest.approx(min(direct, 1.0))
+
+
+def test_study_moulds_take_paper_test_moulds_first_then_lab_ones(caplog):
+    """The sweeps' moulds: the paper test set's first, topped up from the lab test set when
+    it holds fewer than report.moulds (a run whose test set is all lab still has its studies),
+    said in the log."""
+    from condor.config import Config
+    from condor.stages.studies import study_moulds
+
+    def config(test, lab_test, moulds):
+        return Config.from_dict({"scene": "tiny", "n_moulds": 16, "split": {
+            "test": test, "lab_test": lab_test}, "report": {"moulds": moulds}})
+
+    mixed = config(6, 2, 3)
+    assert study_moulds(mixed) == mixed.test_moulds("paper")[:3]
+    all_lab = config(2, 2, 3)
+    with caplog.at_level("WARNING", logger="condor"):
+        chosen = study_moulds(all_lab)
+    assert chosen == all_lab.test_moulds("lab") and len(chosen) == 2
+    assert "paper test set holds 0" in caplog.text
+    topped = config(3, 2, 3)
+    assert study_moulds(topped) == topped.test_moulds("paper") + topped.test_moulds("lab")

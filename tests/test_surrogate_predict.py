@@ -54,7 +54,7 @@ def checkpoint(tmp_path_factory):
 
 @pytest.fixture(scope="module")
 def moulds():
-    return [make_mould(SCENE, 5, i, MouldParams()) for i in range(5)]
+    return [make_mould(SCENE, 5, i, params=MouldParams()) for i in range(5)]
 
 
 def test_batched_prediction_equals_one_mould_at_a_time(checkpoint, moulds):

@@ -33,8 +33,7 @@ from condor.surrogate.predict import Predictor  # noqa: E402
 from condor.surrogate.samples import model_inputs  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
-sys.path.insert(0, str(HERE))
-import run as study  # noqa: E402
+import run as study  # noqa: E402  (its own folder is on sys.path, as for any script)
 
 
 def log(line: str) -> None:

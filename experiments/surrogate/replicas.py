@@ -93,7 +93,7 @@ def main() -> None:
         part = cache / f"{mould_id:06d}.npz"
         if part.exists():
             continue
-        mould = make_mould(scene, seed, int(mould_id), params)
+        mould = make_mould(scene, seed, int(mould_id), params=params)
         fields, seeds, energies = [], [], []
         t0 = time.perf_counter()
         for r in range(1, args.replicas):

@@ -61,6 +61,9 @@ def make_mould(scene: Scene, seed: int, mould_id: int, source: str = PAPER,
     """Mould `mould_id` of dataset `seed` in `scene` from its source (PAPER: the generator with
     `params`; a lab family: `lab_mould` with areas in `lab_area`), checked (never write invalid
     geometry)."""
+    if not isinstance(source, str):
+        raise TypeError(f"make_mould's source is PAPER or a lab family's name, not {source!r} "
+                        "(pass the generator's parameters as params=)")
     if source == PAPER:
         mould = generate_mould(seed, mould_id, scene, **({} if params is None else
                                                        {"params": params}))

@@ -45,14 +45,18 @@ log = logging.getLogger("condor")
 
 def study_moulds(config: Config) -> list[int]:
     """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
-    of the paper test set (the generator's moulds, as the paper reference's); fewer, said in
-    the log, when the paper test set holds fewer."""
-    paper = config.test_moulds("paper")
-    if config.report["moulds"] > len(paper):
+    of the paper test set (the generator's moulds, as the paper reference's), then of the lab
+    test set when the paper test set holds fewer (said in the log); fewer still, said, when
+    the whole test set does."""
+    paper, lab = config.test_moulds("paper"), config.test_moulds("lab")
+    wanted = config.report["moulds"]
+    chosen = (paper + lab)[:wanted]
+    if wanted > len(paper):
         log.warning("report.moulds is %d, but the paper test set holds %d moulds: the accuracy "
-                    "study sweeps those %d (raise split.test, or lower split.lab_test)",
-                    config.report["moulds"], len(paper), len(paper))
-    return paper[: config.report["moulds"]]
+                    "study sweeps %d paper and %d lab test moulds (raise split.test, or lower "
+                    "split.lab_test)", wanted, len(paper), min(len(paper), wanted),
+                    len(chosen) - min(len(paper), wanted))
+    return chosen
 
 
 def mould_by_id(moulds_jsons, mould_id: int):
