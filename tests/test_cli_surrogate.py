@@ -3,6 +3,7 @@ synthetic dataset (condor.surrogate.synthetic), through the CLI's `main`."""
 
 import builtins
 import json
+import re
 import os
 import shutil
 import subprocess
@@ -507,8 +508,24 @@ def test_predict_prints_statistics_and_writes_mm_coordinates(trained, tmp_path, 
     assert stats["tissue_area_mm2"]["value"] == pytest.approx(
         stats["tissue_area"]["value"] * (0.016 / scale) ** 2, rel=1e-9)
     assert "drawn size" in lines["tissue_area_mm2"]
-    assert "training domain: inside" in printed or "training domain: OUTSIDE" in printed
-    assert "tethers 4" in printed
+    # the verdict: the mould's novelty against the checkpoint's own training moulds, called
+    # by the shipped calibration's threshold, with the error measured on moulds that new
+    from condor.findings import load_findings
+
+    verdict = re.search(r"training domain: novelty ([\d.]+) .*: (inside|OUTSIDE) what it learnt",
+                        printed)
+    assert verdict, printed
+    novelty = written.attrs["novelty"]
+    assert float(verdict.group(1)) == pytest.approx(novelty["novelty"], abs=0.006)
+    finding = load_findings()["novelty"]
+    assert novelty["threshold"] == finding.values["threshold"]
+    assert (verdict.group(2) == "OUTSIDE") == (novelty["novelty"] > finding.values["threshold"])
+    bins = finding.frame()
+    row = bins[(bins["score_lo"] < novelty["novelty"]) & (novelty["novelty"] <= bins["score_hi"])]
+    assert novelty["expected_error_ratio"] == pytest.approx(float(row["ratio_median"].iloc[0]))
+    assert re.search(r"moulds this new lay [\d.]+x \[[\d.]+, [\d.]+\] one simulation's scatter",
+                     printed), printed
+    assert "4 posts" in printed
 
 
 def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(

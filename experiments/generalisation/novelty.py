@@ -15,6 +15,7 @@ threshold of 90% caught the false alarms). Cached under --cache (run.py's).
 from __future__ import annotations
 
 import argparse
+import json
 import os
 import sys
 import time
@@ -135,16 +136,21 @@ def main(argv=None) -> int:
         "auroc", ascending=False).iloc[0]["score"]
     calibration, threshold, rates = calibrate(lofo, chosen)
     calibration.to_csv(a.out / "novelty_calibration.csv", index=False)
+    (a.out / "novelty_choice.json").write_text(json.dumps(
+        {"score": chosen, "threshold": threshold, "n_moulds": int(len(lofo)), **rates},
+        indent=1) + "\n")
     print(f"chosen score {chosen}: threshold {threshold:.3g}: {rates}")
     print(calibration.to_string(index=False))
     return 0
 
 
 def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
-    """The product's calibration of `score` (condor.findings.NOVELTY_COLUMNS): per
-    quantile bin of the score, the error over one simulation's scatter (median, 10-90%) and the
-    share above 1; and the threshold that catches at least 90% of the moulds above it with the
-    fewest false alarms (else the best balance of the two), with its rates."""
+    """The product's calibration of `score` (condor.findings.NOVELTY_COLUMNS): per quantile bin
+    of the score, the error over one simulation's scatter (median, 10-90%) and the share above
+    1; the threshold: the lowest bin edge above which every bin's median error is at least one
+    simulation's scatter, so that "inside" means the moulds of that novelty lay within it
+    (issue 41); with the share of the moulds above the scatter it flags and the false alarms,
+    and, for comparison, the false alarms of the lowest threshold that flags 90% of them."""
     values = frame[score].to_numpy()
     ratio = np.sqrt(np.maximum(frame["squared_error"], 0) / frame["noise"]).to_numpy()
     bad = frame["bad"].to_numpy()
@@ -158,18 +164,21 @@ def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
                      "ratio_median": float(np.median(r)), "ratio_lo": float(np.quantile(r, 0.1)),
                      "ratio_hi": float(np.quantile(r, 0.9)),
                      "share_above_ceiling": float(bad[inside].mean())})
-    candidates = np.unique(values)
-    best = None
-    for t in candidates:
-        caught = float((values[bad] > t).mean()) if bad.any() else 1.0
-        alarms = float((values[~bad] > t).mean()) if (~bad).any() else 0.0
-        key = (caught >= 0.9, -alarms if caught >= 0.9 else caught - alarms)
-        if best is None or key > best[0]:
-            best = (key, t, caught, alarms)
-    _, threshold, caught, alarms = best
-    return (pd.DataFrame(rows), float(threshold),
+    table = pd.DataFrame(rows)
+    above = (table["ratio_median"] >= 1.0).to_numpy()
+    k = len(above)
+    while k > 0 and above[k - 1]:
+        k -= 1
+    threshold = float(table["score_lo"].iloc[k]) if k < len(above) else float("inf")
+
+    def rates(t):
+        return (float((values[bad] > t).mean()), float((values[~bad] > t).mean()))
+    caught, alarms = rates(threshold)
+    at_90 = min((t for t in np.unique(values) if rates(t)[0] >= 0.9), key=lambda t: rates(t)[1])
+    return (table, threshold,
             {"caught": caught, "false_alarms": alarms, "n_bad": int(bad.sum()),
-             "n_good": int((~bad).sum())})
+             "n_good": int((~bad).sum()), "threshold_at_90pct_caught": float(at_90),
+             "false_alarms_at_90pct_caught": rates(at_90)[1]})
 
 
 if __name__ == "__main__":

@@ -207,6 +207,9 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, 
     if finding is None:  # a package without the calibration
         return (f"novelty {score:.2f} (1 is typical of its training moulds; not calibrated)",
                 {"novelty": score})
+    if finding.values["score"] != "feature_distance":
+        raise ValueError(f"condor.findings' novelty calibrates {finding.values['score']!r}; "
+                         "predict computes the feature distance (condor.surrogate.novelty)")
     return novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
                            f"{finding.experiment} at {finding.commit}")
 

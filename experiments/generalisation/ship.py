@@ -1,0 +1,87 @@
+"""Ship the study's results as the product reads them: docs/data/generalisation.csv (every
+leave-one-kind-out model on every family scored), and two findings (src/condor/findings):
+`generalisation` (each held-out family's row, and each model's rows on the paper test moulds
+and the fresh seed's) and `novelty` (novelty_calibration.csv and the threshold chosen by
+novelty.py, which `condor predict` reads).
+
+  python experiments/generalisation/ship.py --commit COMMIT
+
+reads generalisation.csv, novelty.csv and novelty_calibration.csv of this folder (run.py's and
+novelty.py's outputs, copied here) and novelty_choice.json (novelty.py's chosen score and
+threshold with its rates).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+import pandas as pd
+
+from condor.findings import GENERALISATION_COLUMNS, NOVELTY_COLUMNS
+
+HERE = Path(__file__).resolve().parent
+REPO = HERE.parents[1]
+FINDINGS = REPO / "src" / "condor" / "findings"
+FRESH = "fresh seed"
+
+
+def held_out_rows(table: pd.DataFrame) -> pd.DataFrame:
+    """Each model's rows on the families it never saw, then on the paper test moulds and the
+    fresh seed's."""
+    held = [f in h.split("+") for f, h in zip(table["family"], table["held_out"])]
+    other = table["family"].isin(["paper", FRESH])
+    return pd.concat([table[held], table[other]], ignore_index=True)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--commit", required=True, help="the commit the study ran at")
+    a = ap.parse_args(argv)
+    table = pd.read_csv(HERE / "generalisation.csv")[list(GENERALISATION_COLUMNS)]
+    (REPO / "docs" / "data").mkdir(exist_ok=True)
+    table.to_csv(REPO / "docs" / "data" / "generalisation.csv", index=False)
+    held_out_rows(table).to_csv(FINDINGS / "generalisation.csv", index=False)
+    calibration = pd.read_csv(HERE / "novelty_calibration.csv")[list(NOVELTY_COLUMNS)]
+    calibration.to_csv(FINDINGS / "novelty.csv", index=False)
+    choice = json.loads((HERE / "novelty_choice.json").read_text())
+    n_models = table["held_out"].nunique()
+    path = FINDINGS / "findings.json"
+    findings = json.loads(path.read_text())
+    findings["generalisation"] = {
+        "question": "How close does the default recipe come to the expected fields on lab "
+                    "families it never trained on (each kind of two kindred families held out "
+                    "of training in turn), and on the paper's moulds and a fresh generator seed "
+                    "beside them?",
+        "table": "generalisation.csv",
+        "experiment": "experiments/generalisation",
+        "source": f"experiments/generalisation/generalisation.csv (run.py --steps lofo "
+                  f"--epochs 120: {n_models} models of 250 training moulds, half lab; 8 test "
+                  "moulds a family x 4 replicas; error against the expected fields with the "
+                  "noise removed, 95% intervals over moulds)",
+        "commit": a.commit,
+    }
+    findings["novelty"] = {
+        "question": "How new is a mould to the surrogate, and how far off are its predictions "
+                    "on moulds that new (the error over one simulation's scatter, by novelty)?",
+        "table": "novelty.csv",
+        "experiment": "experiments/generalisation",
+        "source": f"experiments/generalisation/novelty_calibration.csv (novelty.py: the "
+                  f"{choice['score']} of {choice['n_moulds']} test moulds under the "
+                  f"{n_models} leave-one-kind-out models; above the threshold "
+                  f"{choice['caught']:.0%} of the moulds above one simulation's scatter are "
+                  f"flagged, at {choice['false_alarms']:.0%} false alarms)",
+        "commit": a.commit,
+        "values": {k: choice[k] for k in ("score", "threshold", "caught", "false_alarms",
+                                          "n_bad", "n_good")},
+    }
+    path.write_text(json.dumps(findings, indent=1) + "\n")
+    print(f"wrote docs/data/generalisation.csv, findings generalisation and novelty "
+          f"({choice['score']} above {choice['threshold']:.3g})")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
