@@ -26,12 +26,14 @@ import json
 import logging
 import os
 import platform
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from condor.data import inputs as model_inputs
+from condor.files import atomic_path, write_text
 
 from condor import plots
 from condor.config import Config
@@ -55,10 +57,7 @@ def write_json_atomic(path: str | Path, payload) -> Path:
     """Write JSON through a temporary file and a rename: readers see all of it or nothing."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(json.dumps(payload, indent=1))
-    os.replace(tmp, path)
-    return path
+    return write_text(path, json.dumps(payload, indent=1))
 
 
 # --- 1. the store -------------------------------------------------------------------------------
@@ -285,12 +284,14 @@ def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[in
 def mould_files(scene: Scene, seed: int, mould_id: int, params=None, out=None,
                 png=None, source: str = PAPER) -> Mould:
     """Mould `mould_id` of dataset `seed` in `scene` from `source` (make_mould: the generator
-    or a lab family), written as JSON to `out` and drawn to `png` (each when given)."""
+    or a lab family), written as JSON to `out` and drawn to `png` (each when given): both or
+    neither (condor.files.atomic_path)."""
     mould = make_mould(scene, seed, mould_id, source, params)
-    if out:
-        save_json(mould, out)
-    if png:
-        plots.mould_picture(mould, png)
+    with ExitStack() as both:
+        if out:
+            save_json(mould, both.enter_context(atomic_path(out)))
+        if png:
+            plots.mould_picture(mould, both.enter_context(atomic_path(png)))
     return mould
 
 
@@ -314,7 +315,8 @@ def rasterise_file(simulation, scene_name: str | None, out: Path) -> tuple[SimRe
     scene = get_scene(scene_name or recorded or "default")
     fields = rasterise_result(result, scene)
     if out.suffix == ".npy":
-        np.save(out, fields)
+        with atomic_path(out) as tmp:
+            np.save(tmp, fields)
     else:
         plots.field_panels([(f"{result.n_cells} cells", None, fields)], out)
     return result, scene
