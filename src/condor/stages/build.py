@@ -36,7 +36,7 @@ from condor.data import inputs as model_inputs
 from condor.files import atomic_path, write_text
 
 from condor import plots
-from condor.config import Config
+from condor.config import Config, recorded_splits
 from condor.data.fields import cell_fields
 from condor.moulds.mould import PAPER, Mould, input_channels, save_json
 from condor.moulds.paper import regime_table
@@ -47,8 +47,8 @@ from condor.data.seeds import replica_seed
 from condor.model.simulate import SimResult, simulate, warm_up
 from condor.data.store_check import (check_metadata, check_store, inputs_whole, restore_layout,
                                      scan_store, set_aside)
-from condor.data.store import (create_store, open_store, sample_index, write_expected,
-                               write_inputs, write_sample)
+from condor.data.store import (create_store, open_group, open_store, sample_index,
+                               write_expected, write_inputs, write_sample)
 
 log = logging.getLogger("condor")
 
@@ -326,7 +326,8 @@ def store_report(store, deep: bool = False, shown: int = 20) -> tuple[list[str],
     """What `condor check-store` says of a store (check_metadata, scan_store), and whether it
     is whole; with `deep`, damaged chunk files are moved aside (set_aside)."""
     problems = check_metadata(store)
-    check = scan_store(store, deep=deep)
+    split = recorded_splits(open_group(store).attrs.get("data_config") or {})
+    check = scan_store(store, deep=deep, split=split)
     table = check.samples
     counts = table["state"].value_counts()
     lines = [f"{store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items())]
