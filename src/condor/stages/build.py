@@ -37,6 +37,7 @@ from condor.files import atomic_path, write_text
 
 from condor import plots
 from condor.config import Config, recorded_splits
+from condor.folder import folder_record
 from condor.data.fields import cell_fields
 from condor.moulds.mould import PAPER, Mould, input_channels, save_json
 from condor.moulds.paper import regime_table
@@ -71,11 +72,14 @@ def warm_kernels() -> None:
 
 def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
     """Create the store for `config` (or keep the matching one: its samples stay) and write
-    `manifest` (what the folder holds and for which data configuration). True if created."""
+    `manifest` (what the folder holds and for which data configuration) and the folder's own
+    record of it (condor.folder.FOLDER_RECORD, beside the manifest: it outlives a deleted
+    store and manifest). True if created."""
     warm_kernels()
     created = create_store(store, config.store_spec())
-    write_json_atomic(manifest, {"store": str(store), "data_config": config.data_config(),
-                                 "created": created})
+    record = {"store": str(store), "data_config": config.data_config()}
+    write_json_atomic(folder_record(Path(manifest).parent), record)
+    write_json_atomic(manifest, {**record, "created": created})
     log.info("store %s %s", store, "created" if created else "exists and matches; kept")
     return created
 

@@ -22,7 +22,7 @@ import pandas as pd
 import torch
 
 from condor import plots
-from condor.config import Config
+from condor.config import Config, ConfigError
 from condor.studies.stability import run_cases
 from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
@@ -45,14 +45,24 @@ log = logging.getLogger("condor")
 
 def study_moulds(config: Config) -> list[int]:
     """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
-    of the paper test set (the generator's moulds, as the paper reference's); fewer, said in
-    the log, when the paper test set holds fewer."""
+    of the paper test set (the generator's moulds, as the paper reference's). ConfigError,
+    naming the key, when the paper test set holds fewer, or `report.ladder_moulds` (the
+    ladder's, the first of them) asks for more: a report never measures fewer moulds than its
+    config says."""
     paper = config.test_moulds("paper")
-    if config.report["moulds"] > len(paper):
-        log.warning("report.moulds is %d, but the paper test set holds %d moulds: the accuracy "
-                    "study sweeps those %d (raise split.test, or lower split.lab_test)",
-                    config.report["moulds"], len(paper), len(paper))
-    return paper[: config.report["moulds"]]
+    report = config.report
+    if report["moulds"] > len(paper):
+        n_lab = len(config.test_moulds()) - len(paper)
+        raise ConfigError(
+            f"config key report/moulds: {report['moulds']}, but the paper test set holds "
+            f"{len(paper)} moulds (split/test {config.split['test']}, {n_lab} of them from the "
+            f"lab families: split/lab_test); lower report/moulds to {len(paper)} or less, or "
+            "raise split/test")
+    if report["ladder_moulds"] > report["moulds"]:
+        raise ConfigError(
+            f"config key report/ladder_moulds: {report['ladder_moulds']}, but the ladder runs on "
+            f"the accuracy study's moulds, report/moulds = {report['moulds']}: lower it")
+    return paper[: report["moulds"]]
 
 
 def mould_by_id(moulds_jsons, mould_id: int):
