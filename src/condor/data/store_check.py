@@ -244,7 +244,8 @@ def scan_store(path: str | Path, deep: bool = False, split=None) -> StoreCheck:
                     elif (name, index) in expected and not _plausible(name, values):
                         problems.setdefault((name, index), "holds NaN, inf or a mask value "
                                             "other than 0/1")
-            for key, problem in derived_problems(group, spec, status, ready, problems).items():
+            for key, problem in derived_problems(path, group, spec, status, ready,
+                                                 problems).items():
                 problems.setdefault(key, problem)
     mould_of, replica_of = layout["mould"], layout["replica"]
     order = {name: k for k, name in enumerate(arrays)}
@@ -271,14 +272,20 @@ def scan_store(path: str | Path, deep: bool = False, split=None) -> StoreCheck:
     return StoreCheck(pd.DataFrame(rows), damage, derived)
 
 
-def derived_problems(group, spec, status, ready, known) -> dict[tuple[str, int], str]:
+def derived_problems(path, group, spec, status, ready, known) -> dict[tuple[str, int], str]:
     """{(array, chunk): problem} of what the store derives from its samples, recomputed and
     compared (the deep check): each replicated mould's fields_mean and fields_std against the
     mean and spread of its ok replicas (condor.data.store.expected_fields, bit for bit), or
     NaN with fewer than two; every replica's copy of its mould's inputs, metadata and geometry
-    (MOULD_ARRAYS) against replica 0's. Chunks already `known` to be damaged are not read
-    again."""
+    (MOULD_ARRAYS) against replica 0's; a status that says a simulation failed against its
+    fields (a failed simulation writes none: the status, written last, is the one to doubt).
+    Chunks already `known` to be damaged are not read again."""
     problems: dict[tuple[str, int], str] = {}
+    for i, value in enumerate(status):
+        if value not in (None, "", "ok") and ("status", i) not in known and \
+                chunk_file(path, "fields", i, 4).is_file():
+            problems["status", i] = (f"says the simulation failed ({str(value)[:40]!r}), but the "
+                                     "sample's fields are written")
     replicated = np.flatnonzero(np.asarray(spec.replica_counts) > 1)
 
     def read(name, index):
