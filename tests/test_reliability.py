@@ -69,12 +69,15 @@ def test_forcerun_init_store_keeps_every_sample(folder):
 
 def test_store_created_but_not_recorded_is_kept(folder):
     """The window between the store's creation and init_store's completion (a kill there):
-    the store exists, the job's output does not. The rerun keeps the store and finishes."""
+    the store exists, the job's output does not. The rerun keeps the store and finishes, and
+    the manifest written again (now "created": false) is not newer input to the moulds and
+    the studies: the run after it has nothing to do (it planned all 31 jobs again)."""
     before = fields_of(folder)
     (folder / "results" / "dataset.json").unlink()
     proc = run(folder, "results/dataset.json", *TINY)
     assert "rule init_store" in proc.stderr and (folder / "results" / "dataset.json").is_file()
     np.testing.assert_array_equal(fields_of(folder), before)
+    assert "Nothing to be done" in run(folder, *tiny_args("-n")).stderr
 
 
 @pytest.mark.parametrize("change", ["seed=7", "n_moulds=10", "simulation={'solver': 'anneal'}"])

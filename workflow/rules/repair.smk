@@ -67,13 +67,15 @@ def repair(stage):
 def store_first(rule):
     """Input function: the store's manifest, which a job of `rule` waits for (it writes or
     reads the store, or uses the numba cache init_store warms); not while the store is built
-    again (REBUILD) for a job whose outputs are all there and that is not stale (above)."""
+    again (REBUILD) for a job whose outputs are all there and that is not stale (above).
+    `ancient`: a manifest written again (a rebuild, --forcerun init_store) is not newer input
+    to the moulds and studies made before it, which would run them all again."""
 
     def manifest(wildcards):
         outputs = expand([str(p) for p in getattr(rules, rule).output], **dict(wildcards.items()))
         batch = getattr(wildcards, "batch", None)
         stale = batch in REPAIR[rule] if rule in REPAIR and batch is not None else False
         done = all(Path(p).exists() for p in outputs) and not stale
-        return [] if REBUILD and done else [STORE_MANIFEST]
+        return [] if REBUILD and done else [ancient(STORE_MANIFEST)]
 
     return manifest
