@@ -74,7 +74,7 @@ TINY = ("--configfile", str(REPO / "config" / "tiny.yaml"))
 def test_end_to_end_tiny(tiny_run, tiny_copy):
     ds = assert_store_complete(store_of(tiny_run), 16)
     inputs = ds["inputs"].values
-    assert inputs.shape == (16 + 4 * 3, 2, 32, 32)  # 4 test moulds with 4 replicas each
+    assert inputs.shape == (16 + 6 * 3, 2, 32, 32)  # 6 test moulds with 4 replicas each
     assert not (inputs[:, 0] & inputs[:, 1]).any()  # tether pixels are never mould pixels
     assert ds.attrs["scene"]["name"] == "tiny"
     assert set(ds["split"].values.astype(str)) <= {"train", "val", "test"}
