@@ -25,7 +25,10 @@ REPO = Path(__file__).resolve().parents[1]
 def run_once(n_moulds: int, batch_size: int) -> float:
     with tempfile.TemporaryDirectory() as tmp:
         overlay = Path(tmp) / "overlay.yaml"
-        overlay.write_text(yaml.safe_dump({"n_moulds": n_moulds, "batch_size": batch_size, "split": {"test": 2}}))
+        # 2 test moulds, both the generator's: the accuracy study's (report.moulds)
+        overlay.write_text(yaml.safe_dump({"n_moulds": n_moulds, "batch_size": batch_size,
+                                           "split": {"test": 2, "lab_test": 0},
+                                           "report": {"moulds": 2}}))
         cmd = [sys.executable, "-m", "snakemake", "--cores", "1", "--snakefile", str(REPO / "Snakefile"),
                "--workflow-profile", str(REPO / "profiles" / "default"), "--directory", tmp,
                "--configfile", str(REPO / "config" / "tiny.yaml"), str(overlay), "--until", "gallery", "--quiet"]

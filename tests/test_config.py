@@ -316,3 +316,19 @@ def test_the_design_defaults_have_one_home():
     assert inspect.signature(simulate_designs).parameters["replicas"].default is None
     with pytest.raises(ValueError, match="needs replicas"):
         simulate_designs(None, [], None)
+
+
+@pytest.mark.parametrize("text, said", [
+    ("seed: 7\nn_moulds: 40: 50\n", "not valid YAML at line 2, column 13"),
+    ("seed: 7\nsplit:\n\ttest: 3\n", "not valid YAML at line 3, column 1"),
+    ("- seed\n- 7\n", "must be a mapping of keys, got list"),
+])
+def test_a_config_file_mistake_is_one_line_naming_the_file_and_line(tmp_path, text, said):
+    """Issue 44: a YAML mistake named the file and, on another line, where it was."""
+    path = tmp_path / "mine.yaml"
+    path.write_text(text)
+    with pytest.raises(ConfigError) as info:
+        Config.load(CONFIG_DIR / "config.yaml", path)
+    assert "\n" not in str(info.value) and str(path) in str(info.value) and said in str(info.value)
+    with pytest.raises(ConfigError, match=f"config file {tmp_path / 'gone.yaml'} does not exist"):
+        Config.load(tmp_path / "gone.yaml")

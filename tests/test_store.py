@@ -1,6 +1,7 @@
 """The dataset store: creation, per-sample visibility, parallel writers, clear errors."""
 
 import multiprocessing
+import re
 import shutil
 
 import numpy as np
@@ -9,7 +10,7 @@ import shapely
 import xarray as xr
 import zarr
 
-from condor.data.store import (FIELD_NAMES, FORMAT_VERSION, MAX_TETHERS, MAX_VERTICES, StoreError,
+from condor.data.store import (FIELD_NAMES, FORMAT_CHANGES, FORMAT_VERSION, MAX_TETHERS, MAX_VERTICES, StoreError,
                                StoreSpec, assign_splits, create_store, open_store, outline_polygon,
                                sample_index, sample_layout, write_expected, write_inputs,
                                write_sample)
@@ -384,6 +385,43 @@ def test_deep_finds_a_blank_mould_and_nan_fields(tmp_path):
     assert _damaged(path, deep=True) == {("inputs", 2), ("fields_mean", 1)}
 
 
+@pytest.mark.parametrize("array, index, change", [
+    ("fields_mean", 1, lambda v: v * 1.5),        # issue 44: through zarr, a valid checksum
+    ("fields_std", 0, lambda v: v + 1e-3),
+    ("inputs", 5, lambda v: np.where(np.indices(v.shape).sum(0) == 0, 0, v).astype(v.dtype)),
+    # ^ a replica's copy of its mould's inputs (a pixel off)
+    ("seed", 6, lambda v: v + 1),                 # ... and of its metadata
+    ("status", 2, lambda v: "failed: diverged"),  # a flag that its fields contradict
+])
+def test_deep_recomputes_what_the_store_derives(tmp_path, array, index, change):
+    """A derived array rewritten with a valid checksum: the expected fields differ from the
+    mean and spread of their ok replicas, recomputed; a replica's copy of its mould's inputs
+    or metadata differs from replica 0's. The fast check reads no grid and does not see it."""
+    path = _replicated(tmp_path)
+    group = zarr.open_group(path, mode="r+")
+    group[array][index] = change(group[array][index])
+    assert _damaged(path) == set()
+    check = scan_store(path, deep=True)
+    assert {(d.array, d.index) for d in check.damage} == {(array, index)}
+    assert "differs from" in check.damage[0].problem or array == "status"
+    assert ("recomputed" if array.startswith("fields") else "replica 0" if array != "status"
+            else "fields are written") in check.damage[0].problem
+
+
+def test_a_split_other_than_the_configs_is_found_by_the_fast_check(tmp_path):
+    path = _replicated(tmp_path)
+    split = spec(n=len(COUNTS), replicas=COUNTS).split
+    assert _damaged(path) == set() and scan_store(path, split=split).damage == []
+    group = zarr.open_group(path, mode="r+")
+    group["split"][2] = "test" if split[2] != "test" else "train"
+    assert _damaged(path) == set()  # a valid split name: only the config's split tells
+    damage = scan_store(path, split=split).damage
+    assert [(d.array, d.index) for d in damage] == [("split", 2)]
+    assert "the data configuration's split says" in damage[0].problem
+    restore_layout(path, split)
+    assert scan_store(path, deep=True, split=split).damage == []
+
+
 def test_set_aside_moves_damaged_chunks_out_for_the_fast_check_to_find(tmp_path):
     path = _replicated(tmp_path)
     chunk = chunk_file(path, "energy", 2, 1)
@@ -507,8 +545,9 @@ def test_a_store_of_an_older_format_is_refused_naming_what_it_lacks(tmp_path):
     root = json.loads((path / "zarr.json").read_text())
     root["attributes"]["format_version"] = FORMAT_VERSION - 1
     (path / "zarr.json").write_text(json.dumps(root))
+    added = re.escape(FORMAT_CHANGES[FORMAT_VERSION])  # what the newest format adds
     with pytest.raises(StoreError, match=f"format version {FORMAT_VERSION - 1}, this code reads "
-                       f"version {FORMAT_VERSION}.*family.*rebuild"):
+                       f"version {FORMAT_VERSION}.*{added}.*rebuild"):
         open_store(path)
 
 

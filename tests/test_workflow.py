@@ -285,9 +285,15 @@ def test_bad_config_stops_with_named_key(tmp_path):
      "the limit is 200,000 a mould"),
     ({"simulation": {"replicas": {"test": 1}}}, "config key simulation/replicas/test: 1 ",
      "4 or more replicas"),
+    # issue 44, probe 7: the accuracy study silently swept 4 moulds of the 9 asked for
+    ({"report": {"moulds": 9}}, "config key report/moulds: 9, ",
+     "the test set holds 6 moulds"),
+    ({"report": {"ladder_moulds": 4}}, "config key report/ladder_moulds: 4, ",
+     "report/moulds = 3"),
 ])
 def test_a_config_that_would_fail_late_stops_before_any_job(tmp_path, change, named, why):
-    """Issue 33, items 10 and 11: one line naming the key, before the DAG (`-n` shows it)."""
+    """Issue 33, items 10 and 11, and a value that cannot be honoured (issue 44): one line
+    naming the key, before the DAG (`-n` shows it)."""
     proc = run(tmp_path, *overlay(tmp_path, **change), "-n", check=False)
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     lines = [line for line in proc.stderr.splitlines() if line.startswith("condor: ")]

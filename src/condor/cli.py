@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 from condor.data.store import SPLITS
+from condor.files import WriteError, fault_message, write_fault
 from condor.model.scenes import PRESETS, get_scene
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS
 from condor.moulds.lab import FAMILY_NAMES
@@ -585,14 +586,17 @@ def main(argv: list[str] | None = None) -> None:
     args = build_parser().parse_args(argv)
     try:
         args.func(args)
-    except CLIError as err:
+    except (CLIError, WriteError) as err:
         _fail(args, err)
     except PermissionError as err:  # a read-only output folder, most often
         where = f": {str(err.filename)!r}" if err.filename else f" ({err})"
         _fail(args, f"permission denied{where} (is the folder read-only?)")
     except (ValueError, OSError, RuntimeError) as err:
-        # Library errors name the bad value; print them as one line, not a traceback.
-        _fail(args, err)
+        # Library errors name the bad value; print them as one line, not a traceback. A write
+        # that failed (disk full, a file-size limit) outside condor.files.atomic_path: its cause
+        # in words, and its file where the error names it.
+        fault = write_fault(err)
+        _fail(args, err if fault is None else fault_message(fault.filename, fault))
 
 
 def _fail(args, message) -> None:

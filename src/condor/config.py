@@ -153,17 +153,7 @@ class Config:
         """Read YAML config files and build the Config of them layered as Snakemake layers
         them (`layered`): `Config.load("config/config.yaml", "config/tiny.yaml")` is the
         config of `snakemake --configfile config/tiny.yaml`."""
-        configs = []
-        for path in map(Path, paths):
-            try:
-                config = yaml.safe_load(path.read_text()) or {}
-            except (OSError, yaml.YAMLError) as err:
-                raise ConfigError(f"cannot read config {path}: {err}") from err
-            if not isinstance(config, dict):
-                raise ConfigError(f"config {path} must be a mapping of keys, got "
-                                  f"{type(config).__name__}")
-            configs.append(config)
-        return cls.from_dict(layered(*configs))
+        return cls.from_dict(layered(*map(read_config_file, paths)))
 
     @classmethod
     def default(cls, **changes) -> "Config":
@@ -186,9 +176,7 @@ class Config:
         """The split of every mould (deterministic for the seed); the moulds the package
         holds a paper reference of (scene and seed) are always test moulds, so that the
         surrogate is scored against the paper's ensemble on moulds it did not train on."""
-        from condor.studies.paper_reference import reference_moulds
-        return assign_splits(self.n_moulds, self.split["test"], self.split["val_fraction"],
-                             self.seed, pinned=reference_moulds(self.scene.name, self.seed))
+        return mould_splits(self.n_moulds, self.split, self.seed, self.scene.name)
 
     def lab_families(self) -> tuple[str, ...]:
         """The lab families the config draws from (`moulds.lab_families`; null: all)."""
@@ -389,6 +377,51 @@ class Config:
             raise ConfigError(f"config key design/objective: {err}") from err
 
 
+def mould_splits(n_moulds: int, split: Mapping, seed: int, scene: str) -> tuple[str, ...]:
+    """The split of every mould of a dataset (Config.splits): `split` the config's section,
+    `scene` the scene's name (the moulds with a paper reference are test moulds)."""
+    from condor.studies.paper_reference import reference_moulds
+    return assign_splits(n_moulds, split["test"], split["val_fraction"], seed,
+                         pinned=reference_moulds(scene, seed))
+
+
+def recorded_splits(data_config: Mapping) -> tuple[str, ...] | None:
+    """The split of every mould of a store built for `data_config` (Config.data_config(), as
+    a store and its folder record it), None when it does not say."""
+    try:
+        return mould_splits(int(data_config["n_moulds"]), data_config["split"],
+                            int(data_config["seed"]), data_config["scene"]["name"])
+    except (KeyError, TypeError, ValueError):
+        return None
+
+
+def read_config_file(path) -> dict:
+    """The mapping a YAML config file holds; ConfigError, one line, naming the file when it is
+    missing, unreadable, not YAML (with the line and column of the mistake) or not a mapping."""
+    path = Path(path)
+    try:
+        text = path.read_text()
+    except FileNotFoundError:
+        raise ConfigError(f"config file {path} does not exist") from None
+    except (OSError, UnicodeDecodeError) as err:
+        raise ConfigError(f"config file {path} cannot be read ({err})") from None
+    try:
+        config = yaml.safe_load(text)
+    except yaml.YAMLError as err:
+        mark = getattr(err, "problem_mark", None)
+        where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark is not None else ""
+        problem = getattr(err, "problem", None) or str(err).splitlines()[0]
+        context = getattr(err, "context", None)
+        raise ConfigError(f"config file {path} is not valid YAML{where}: {problem}"
+                          + (f" ({context})" if context else "")) from None
+    if config is None:
+        return {}
+    if not isinstance(config, dict):
+        raise ConfigError(f"config file {path} must be a mapping of keys, got "
+                          f"{type(config).__name__}")
+    return config
+
+
 def check_device(device: str, what: str) -> None:
     """ConfigError when torch cannot use `device` here (e.g. 'cuda' without a GPU)."""
     import torch
@@ -436,4 +469,4 @@ def _fill_defaults(config: dict, schema: dict) -> None:
 
 
 __all__ = ["Config", "ConfigError", "MODEL_PARAMETERS", "SCHEMA_PATH", "SPLITS", "check_device",
-           "layered", "load_schema"]
+           "layered", "load_schema", "mould_splits", "read_config_file", "recorded_splits"]

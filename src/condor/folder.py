@@ -1,10 +1,14 @@
 """The results folder: built for one data configuration, used by one run at a time, repaired
 where its store lost what its flag files claim.
 
-- `check_folder(config)`: a folder already holding data (its store) for another data
-  configuration (`Config.data_config()`: scene, seed, moulds, batching, split, solver,
-  replicas) stops the workflow before any job runs, naming each differing key, the folder
-  and what to do. Nothing is mixed into a store and nothing is silently left stale.
+- `check_folder(config)`: a folder already holding data for another data configuration
+  (`Config.data_config()`: scene, seed, moulds, batching, split, solver, replicas) stops the
+  workflow before any job runs, naming each differing key, the folder and what to do. Three
+  records say what a folder was built for: the store's attributes, its manifest
+  (`dataset.json`) and the folder's own record (`FOLDER_RECORD`, written with the store, so
+  that a deleted store and manifest leave one behind); each that is there must match. A
+  folder holding data (moulds, simulations, fields) with none of them is refused too: its
+  data cannot be checked. Nothing is mixed into a store and nothing is silently left stale.
 - `RunLock`: `<results>/.condor.lock` holds the PID, the process start time and the host of
   the run that holds the folder. A second run stops at once with a message; a lock whose
   process is gone (a SIGKILL, a power cut) or whose PID now belongs to another process
@@ -22,14 +26,27 @@ import socket
 from pathlib import Path
 
 from condor.config import Config
+from condor.files import WRITE_FAULTS, write_fault
 from condor.data.store import MOULD_ARRAYS, SAMPLE_ARRAYS, StoreError, open_group
 from condor.data.store_check import scan_store
 
 LOCK_NAME = ".condor.lock"
+FOLDER_RECORD = ".condor.folder.json"  # the data configuration the folder holds
+MANIFEST = "dataset.json"  # init_store's output: the store exists, and for which data
+DATA_FOLDERS = ("moulds", "sims", "fields")  # per-batch files the data of the folder is made of
 
 
 class FolderError(RuntimeError):
     """A results folder that cannot be used as asked; the message says why and what to do."""
+
+
+def unwritable(results: str | Path, err: OSError) -> FolderError:
+    """The FolderError of a results folder that a write fault (condor.files) stops: one line,
+    the folder, the file and the cause."""
+    cause = WRITE_FAULTS.get(err.errno) or err.strerror or str(err)
+    return FolderError(f"results folder {str(results)!r} cannot be written ({cause}: "
+                       f"{err.filename}); make it writable or point `results` at another "
+                       "folder (e.g. --config results=results_new)")
 
 
 def store_path(results: str | Path) -> Path:
@@ -37,32 +54,76 @@ def store_path(results: str | Path) -> Path:
     return Path(results) / "dataset.zarr"
 
 
+def folder_record(results: str | Path) -> Path:
+    """Where a results folder records the data configuration it holds (FOLDER_RECORD)."""
+    return Path(results) / FOLDER_RECORD
+
+
+def data_files(results: str | Path) -> list[str]:
+    """The folders of `results` (DATA_FOLDERS) that hold files of its data, by name."""
+    return [name for name in DATA_FOLDERS
+            if (Path(results) / name).is_dir() and any((Path(results) / name).iterdir())]
+
+
+def records(results: str | Path, store: str | Path | None = None) -> list[tuple[Path, dict]]:
+    """[(file, the data configuration it records)] of each record of the folder that is there:
+    the store's attributes, its manifest, the folder's record (module docs). FolderError when
+    one cannot be read."""
+    results = Path(results)
+    store = store_path(results) if store is None else Path(store)
+    found = []
+    if store.exists():
+        try:
+            found.append((store, open_group(store).attrs.get("data_config") or {}))
+        except StoreError as err:
+            raise FolderError(f"{err}. Move or delete {store} (its samples cannot be reused) "
+                              "or point `results` at a new folder") from err
+    for path in (results / MANIFEST, folder_record(results)):
+        if path.is_file():
+            try:
+                recorded = json.loads(path.read_text()).get("data_config")
+            except (OSError, ValueError, AttributeError) as err:
+                raise FolderError(f"{path} cannot be read ({err}): it records the data "
+                                  f"configuration of {results}; delete {results} to rebuild it, "
+                                  "or point `results` at a new folder") from None
+            if recorded is not None:
+                found.append((path, recorded))
+    return found
+
+
 def check_folder(config: Config, store: str | Path | None = None) -> None:
-    """FolderError when `config.results` is not a usable folder for `config`: it is a file, or
-    its store was built for another data configuration."""
+    """FolderError when `config.results` is not a usable folder for `config`: it is a file, a
+    record of it says it holds data of another data configuration, or it holds data and no
+    record of what for (module docs)."""
     results = Path(config.results)
     if results.exists() and not results.is_dir():
         raise FolderError(f"results folder {str(results)!r} is a file; point `results` at a "
                           "folder (e.g. --config results=results/run2)")
-    store = store_path(results) if store is None else Path(store)
-    if not store.exists():
-        return
-    try:
-        built_for = open_group(store).attrs.get("data_config")
-    except StoreError as err:
-        raise FolderError(f"{err}. Move or delete {store} (its samples cannot be reused) or "
-                          "point `results` at a new folder") from err
     wanted = json.loads(json.dumps(config.data_config()))
-    if built_for == wanted:
+    found = records(results, store)
+    if not found:
+        held = data_files(results)
+        if held:
+            raise FolderError(
+                f"results folder {str(results)!r} holds data ({', '.join(f'{n}/' for n in held)}) "
+                f"but no record of the configuration it was built for (its store, {MANIFEST} and "
+                f"{FOLDER_RECORD} are gone), so it cannot be checked against this one. Nothing "
+                f"was run. Delete {', '.join(str(results / n) for n in held)} to rebuild the "
+                f"data, or use a new folder (e.g. --config results={results}_new)")
         return
-    built_for = built_for or {}
-    diffs = [f"{key}: folder has {built_for.get(key)!r}, config asks {value!r}"
-             for key, value in wanted.items() if built_for.get(key) != value]
-    raise FolderError(
-        f"results folder {str(results)!r} holds a dataset built for another configuration "
-        f"({'; '.join(diffs)}). Nothing was run. Use a new folder for this configuration "
-        f"(e.g. --config results={results}_{diffs[0].split(':')[0] if diffs else 'new'}), "
-        f"or delete {results} to rebuild it, or go back to the folder's settings")
+    for where, built_for in found:
+        if built_for == wanted:
+            continue
+        diffs = [f"{key}: folder has {built_for.get(key)!r}, config asks {value!r}"
+                 for key, value in wanted.items() if built_for.get(key) != value] or \
+            [f"{key}: folder has {value!r}, this code has no such key"
+             for key, value in built_for.items() if key not in wanted]
+        raise FolderError(
+            f"results folder {str(results)!r} holds a dataset built for another configuration "
+            f"({'; '.join(diffs)}; recorded in {where}). Nothing was run. Use a new folder for "
+            f"this configuration (e.g. --config results="
+            f"{results}_{diffs[0].split(':')[0] if diffs else 'new'}), or delete {results} to "
+            "rebuild it, or go back to the folder's settings")
 
 
 # --- one run at a time -----------------------------------------------------------------------
@@ -110,10 +171,10 @@ class RunLock:
         results = self.path.parent
         try:
             self._acquire()
-        except PermissionError as err:
-            raise FolderError(f"results folder {str(results)!r} cannot be written "
-                              f"(permission denied: {err.filename}); is it read-only? Make it "
-                              "writable or point `results` at another folder") from None
+        except OSError as err:
+            if write_fault(err) is None:
+                raise
+            raise unwritable(results, err) from None
         # its stage folders too (figures/, models/, ...): else a job fails with a traceback
         read_only = [entry.path for entry in os.scandir(results)
                      if entry.is_dir(follow_symlinks=False) and not os.access(entry.path, os.W_OK)]
@@ -154,15 +215,16 @@ class RunLock:
 
 # --- repairs -----------------------------------------------------------------------------------
 
-def store_gaps(store: str | Path) -> dict[str, set]:
+def store_gaps(store: str | Path, split=None) -> dict[str, set]:
     """What the store lacks, by the step that writes it again (condor.data.store_check.scan_store: chunk
     files listed and their headers read; only the flags and the layout are decompressed):
     {"inputs": moulds with a replica whose inputs are not ready or with a damaged chunk of an
     array the mould stage writes, "fields": those and the moulds with a replica not yet
     simulated or with a damaged chunk of an array the fields stage writes, "dataset": the
     arrays the dataset step writes again (the layout, the coordinates and the expected
-    fields) that are damaged or not yet derived}."""
-    check = scan_store(store)
+    fields) that are damaged or not yet derived}. `split`: the per-mould split the config
+    gives (a sample holding another is damaged layout)."""
+    check = scan_store(store, split=split)
     table = check.samples
     lost = table["lost"].str.split(",").apply(set)
     no_inputs = table["inputs_ready"].ne(1) | lost.apply(lambda a: bool(a & set(MOULD_ARRAYS)))

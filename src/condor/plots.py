@@ -13,6 +13,7 @@ from pathlib import Path
 import numpy as np
 
 from condor.data.fields import FIELD_NAMES
+from condor.files import atomic_path
 from condor.measures.bars import SAME_STATES
 from condor.measures.metrics import BEST_WORST_FIELDS, best_worst
 
@@ -33,11 +34,14 @@ def pyplot():
 
 
 def save(fig, path, dpi: int = 110) -> Path:
-    """Write `fig` to `path` (folders made) and close it."""
+    """Write `fig` to `path` (folders made; whole or not at all: condor.files) and close it."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=dpi)
-    pyplot().close(fig)
+    try:
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=dpi)
+    finally:
+        pyplot().close(fig)
     return path
 
 

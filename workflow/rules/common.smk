@@ -3,8 +3,10 @@
 import sys
 from pathlib import Path
 
+from snakemake.io import strip_wildcard_constraints
+
 from condor.config import Config, ConfigError
-from condor.folder import FolderError, RunLock, check_folder, store_gaps, store_path
+from condor.folder import FolderError, RunLock, check_folder, data_files, store_path
 
 try:
     CONFIG = Config.from_dict(config)
@@ -85,53 +87,28 @@ def moulds_of_batch(mould):
     return f"{R}/moulds/batch_{int(mould) // CONFIG.batch_size:04d}.json"
 
 
-# --- repairs: a flag file claims a batch is done but the store lost its samples ---------------
-# The main process compares the flags with the store (condor.folder.store_gaps: chunk files
-# listed and their headers read; only the flags and the layout decompressed). Each stale
-# job gets a marker input, touched now, so it is newer than the job's flag and Snakemake
-# reruns exactly those jobs (and, by mtime, what follows them); `snakemake -n` shows them.
-# A marker is an input only while its job is stale; results/.repair keeps them as a record.
-# Lost inputs are written again by the batch's fields job, from the moulds JSON its
-# simulations used (rerunning the moulds job would rerun the simulations, whose timings
-# differ); the layout and the expected fields by the dataset job.
-REPAIR = {"init_store": False, "simulate": set(), "fields": set(), "dataset": False}
-if workflow.is_main_process and Path(STORE_MANIFEST).exists():
-    if not Path(STORE).exists():
-        REPAIR["init_store"] = True
-    else:
-        GAPS = store_gaps(STORE)
-        for _b, _ids in enumerate(BATCHES):
-            _bid, _ids = f"{_b:04d}", set(_ids)
-            fields_done = Path(f"{R}/fields/batch_{_bid}.json").exists()
-            if fields_done and GAPS["fields"] & _ids:
-                REPAIR["fields"].add(_bid)
-            sims = Path(f"{R}/sims/batch_{_bid}")
-            lost = sims.exists() and any(
-                not (sims / f"{m:06d}_{r:02d}.npz").exists() for m in _ids for r in range(REPLICAS[m]))
-            if lost and (not fields_done or _bid in REPAIR["fields"]):
-                REPAIR["simulate"].add(_bid)
-        REPAIR["dataset"] = bool(GAPS["dataset"]) and Path(f"{R}/dataset_summary.csv").exists()
+# The rules whose outputs are the per-batch files the store is built from (moulds/, sims/,
+# fields/): made again when the store needs them (repair.smk), not for their own sake.
+INTERMEDIATE = ("moulds", "simulate", "fields")
 
 
-def repair_marker(stage, batch="all"):
-    return Path(f"{R}/.repair/{stage}_{batch}")
-
-
-for _stage, _stale in REPAIR.items():
-    for _bid in (["all"] if _stale is True else [] if _stale is False else sorted(_stale)):
-        repair_marker(_stage, _bid).parent.mkdir(parents=True, exist_ok=True)
-        repair_marker(_stage, _bid).touch()
-
-
-def repair(stage):
-    """Input function: the touched marker of a job the store shows to be stale, else nothing."""
-
-    def marker(wildcards):
-        batch = getattr(wildcards, "batch", None)
-        stale = REPAIR[stage] if batch is None else batch in REPAIR[stage]
-        return [str(repair_marker(stage, batch or "all"))] if stale else []
-
-    return marker
+def every_output():
+    """Every output of every rule but `all`'s and INTERMEDIATE's, for each value of its
+    wildcards, that FINAL_TARGETS lacks: `all` asks for them all, so that a deleted one is
+    built again (Snakemake reruns a job for a missing output only when a job that reads it
+    runs, or when a target asks for it)."""
+    values = {"batch": BATCH_IDS, "variant": list(VARIANTS), "mould": list(map(str, STUDY_MOULDS))}
+    wanted = set(map(str, FINAL_TARGETS))
+    found = []
+    for declared in workflow.rules:
+        if declared.name == "all" or declared.name in INTERMEDIATE:
+            continue
+        for pattern in declared.output:
+            found += [path for path in expand(strip_wildcard_constraints(str(pattern)),
+                                              **{name: values[name]
+                                                 for name in declared.wildcard_names})
+                      if path not in wanted and path not in found]
+    return found
 
 
 localrules:

@@ -8,7 +8,7 @@ rule fields:
     input:
         sims=f"{R}/sims/batch_{{batch}}",
         moulds=f"{R}/moulds/batch_{{batch}}.json",
-        manifest=STORE_MANIFEST,
+        manifest=store_first("fields"),
         repair=repair("fields"),
     output:
         f"{R}/fields/batch_{{batch}}.json",

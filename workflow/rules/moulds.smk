@@ -20,7 +20,7 @@ rule moulds:
     conda:
         CONDA_ENV
     input:
-        manifest=STORE_MANIFEST,
+        manifest=store_first("moulds"),
     output:
         f"{R}/moulds/batch_{{batch}}.json",
     params:

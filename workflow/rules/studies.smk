@@ -4,7 +4,10 @@
 # the stability cases.
 from condor.stages.studies import study_moulds
 
-STUDY_MOULDS = study_moulds(CONFIG)
+try:
+    STUDY_MOULDS = study_moulds(CONFIG)
+except ConfigError as err:
+    sys.exit(f"condor: {err}")  # one line, no traceback, nothing run
 STUDIES = f"{R}/studies"
 
 
@@ -117,7 +120,7 @@ rule stability:
     conda:
         CONDA_ENV
     input:
-        STORE_MANIFEST,  # the numba cache is warm before any simulation job
+        store_first("stability"),  # the numba cache is warm before any simulation job
     output:
         report(f"{STUDIES}/stability.csv", caption="../report/stability.rst", category="Simulator"),
     params:
@@ -136,7 +139,7 @@ rule fidelity:
     conda:
         CONDA_ENV
     input:
-        manifest=STORE_MANIFEST,  # the numba cache is warm before any simulation job
+        manifest=store_first("fidelity"),  # the numba cache is warm before any simulation job
         checkpoints=expand(f"{R}/models/{{variant}}.pt", variant=list(VARIANTS)),
     output:
         report(f"{STUDIES}/fidelity.csv", caption="../report/fidelity.rst", category="Simulator"),

@@ -584,13 +584,25 @@ def write_expected(path: str | Path) -> int:
     counts = np.zeros(len(moulds), dtype="int16")
     with quiet_zarr():
         for k, mould in enumerate(moulds):
-            samples = [s for s in (sample_index(spec.replica_counts, int(mould), r)
-                                   for r in range(spec.replica_counts[mould]))
-                       if status[s] == "ok"]
+            samples = ok_replicas(spec, int(mould), status)
             counts[k] = len(samples)
             if len(samples) >= 2:
-                stack = np.stack([group["fields"][s] for s in samples]).astype(np.float64)
-                group["fields_mean"][k] = stack.mean(axis=0).astype("float32")
-                group["fields_std"][k] = stack.std(axis=0, ddof=1).astype("float32")
+                mean, std = expected_fields([group["fields"][s] for s in samples])
+                group["fields_mean"][k] = mean
+                group["fields_std"][k] = std
         group["n_replicas_ok"][:] = counts
     return len(moulds)
+
+
+def ok_replicas(spec: StoreSpec, mould: int, status) -> list[int]:
+    """The samples of `mould`'s replicas whose `status` (per sample) is "ok"."""
+    return [s for s in (sample_index(spec.replica_counts, mould, r)
+                        for r in range(spec.replica_counts[mould])) if status[s] == "ok"]
+
+
+def expected_fields(replicas) -> tuple[np.ndarray, np.ndarray]:
+    """(fields_mean, fields_std) of one mould from its ok replicas' fields (two or more):
+    the mean and the standard deviation (ddof 1), in float64, stored as float32. The one rule
+    that write_expected writes and the deep check (condor.data.store_check) recomputes."""
+    stack = np.stack(list(replicas)).astype(np.float64)
+    return stack.mean(axis=0).astype("float32"), stack.std(axis=0, ddof=1).astype("float32")

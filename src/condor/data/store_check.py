@@ -21,8 +21,8 @@ import numpy as np
 import pandas as pd
 
 from condor.data.store import (COORDINATES, LAYOUT_VARIABLES, MOULD_ARRAYS, SAMPLE_ARRAYS, SPLITS,
-                               expected_arrays, layout_values, open_group, quiet_zarr,
-                               sample_index, spec_of)
+                               expected_arrays, expected_fields, layout_values, ok_replicas,
+                               open_group, quiet_zarr, sample_index, spec_of)
 
 def check_metadata(path: str | Path) -> list[str]:
     """Problems with the arrays' metadata: the shape, chunks and data type zarr reads (the
@@ -152,15 +152,17 @@ def frame_problem(file: Path, zstd: bool, trailer: int, decoded: int) -> str:
     return ""
 
 
-def scan_store(path: str | Path, deep: bool = False) -> StoreCheck:
+def scan_store(path: str | Path, deep: bool = False, split=None) -> StoreCheck:
     """Check every chunk of every array the store's flags say it holds (module docs).
 
     Fast (default): each such chunk file must exist and hold one whole frame of the right
     length (`frame_problem`); the small arrays that say what the store holds are decoded: the
     flags (inputs_ready, status), the layout (coordinates, each sample's mould, replica and
-    split, compared with the attributes) and n_replicas_ok. `deep` also decodes every chunk of
-    every array (checksums) and checks that the grids that should be written are finite and
-    the masks 0/1."""
+    split, compared with the attributes and, given the per-mould `split`, with it) and
+    n_replicas_ok (compared with the statuses). `deep` also decodes every chunk of every array
+    (checksums), checks that the grids that should be written are finite and the masks 0/1,
+    and recomputes what is derived from the samples (`derived_problems`): a rewrite that kept
+    its checksum valid is found too."""
     path = Path(path)
     group = open_group(path)
     spec = spec_of(group)
@@ -204,10 +206,14 @@ def scan_store(path: str | Path, deep: bool = False) -> StoreCheck:
                 if whole[i] and value is not None and value != want[i]:
                     problems[name, i] = f"holds {value!r}, the store's layout says {want[i]!r}"
         whole = [check("split", i) for i in range(n)]
+        wanted = None if split is None else layout_values(spec, split)["split"]
         split = decoded("split", _read_each(arrays["split"]))
         for i, value in enumerate(split):
             if whole[i] and value is not None and value not in SPLITS:
                 problems["split", i] = f"holds {value!r}, not one of {SPLITS}"
+            elif whole[i] and value is not None and wanted is not None and value != wanted[i]:
+                problems["split", i] = (f"holds {str(value)!r}, the data configuration's split "
+                                        f"says {str(wanted[i])!r}")
         ready = decoded("inputs_ready", _read_each(arrays["inputs_ready"]))
         status = decoded("status", _read_each(arrays["status"]))
         for i in range(n):
@@ -238,6 +244,9 @@ def scan_store(path: str | Path, deep: bool = False) -> StoreCheck:
                     elif (name, index) in expected and not _plausible(name, values):
                         problems.setdefault((name, index), "holds NaN, inf or a mask value "
                                             "other than 0/1")
+            for key, problem in derived_problems(path, group, spec, status, ready,
+                                                 problems).items():
+                problems.setdefault(key, problem)
     mould_of, replica_of = layout["mould"], layout["replica"]
     order = {name: k for k, name in enumerate(arrays)}
     per_sample = {*MOULD_ARRAYS, *SAMPLE_ARRAYS, *LAYOUT_VARIABLES}
@@ -261,6 +270,66 @@ def scan_store(path: str | Path, deep: bool = False) -> StoreCheck:
                      "split": split[i] or "", "inputs_ready": ready[i], "status": status[i],
                      "state": state, "lost": ",".join(lost.get(i, []))})
     return StoreCheck(pd.DataFrame(rows), damage, derived)
+
+
+def derived_problems(path, group, spec, status, ready, known) -> dict[tuple[str, int], str]:
+    """{(array, chunk): problem} of what the store derives from its samples, recomputed and
+    compared (the deep check): each replicated mould's fields_mean and fields_std against the
+    mean and spread of its ok replicas (condor.data.store.expected_fields, bit for bit), or
+    NaN with fewer than two; every replica's copy of its mould's inputs, metadata and geometry
+    (MOULD_ARRAYS) against replica 0's; a status that says a simulation failed against its
+    fields (a failed simulation writes none: the status, written last, is the one to doubt).
+    Chunks already `known` to be damaged are not read again."""
+    problems: dict[tuple[str, int], str] = {}
+    for i, value in enumerate(status):
+        if value not in (None, "", "ok") and ("status", i) not in known and \
+                chunk_file(path, "fields", i, 4).is_file():
+            problems["status", i] = (f"says the simulation failed ({str(value)[:40]!r}), but the "
+                                     "sample's fields are written")
+    replicated = np.flatnonzero(np.asarray(spec.replica_counts) > 1)
+
+    def read(name, index):
+        if (name, index) in known:
+            return None
+        try:
+            return np.asarray(group[name][index])
+        except Exception:  # noqa: BLE001 - a damaged chunk: the decode loop names it
+            return None
+
+    with quiet_zarr():
+        for k, mould in enumerate(replicated):
+            samples = ok_replicas(spec, int(mould), status)
+            if len(samples) >= 2:
+                fields = [read("fields", s) for s in samples]
+                if any(f is None for f in fields):
+                    continue
+                for name, want in zip(("fields_mean", "fields_std"), expected_fields(fields)):
+                    got = read(name, k)
+                    if got is not None and not np.array_equal(got, want, equal_nan=True):
+                        what = "mean" if name == "fields_mean" else "spread"
+                        problems[name, k] = (
+                            f"differs from the {what} of the mould's {len(samples)} ok replicas, "
+                            f"recomputed (largest difference {np.nanmax(np.abs(got - want)):.3g})")
+            else:
+                for name in ("fields_mean", "fields_std"):
+                    got = read(name, k)
+                    if got is not None and not np.isnan(got).all():
+                        problems[name, k] = (f"holds values, but the mould has {len(samples)} ok "
+                                             "replica(s), fewer than the 2 it takes")
+        for mould in replicated:
+            first, *others = [sample_index(spec.replica_counts, int(mould), r)
+                              for r in range(spec.replica_counts[mould])]
+            if ready[first] != 1:
+                continue
+            for name in MOULD_ARRAYS:
+                want = read(name, first)
+                for s in others:
+                    got = read(name, s) if ready[s] == 1 else None
+                    if want is not None and got is not None and \
+                            not np.array_equal(got, want, equal_nan=got.dtype.kind == "f"):
+                        problems[name, s] = (f"differs from replica 0's (sample {first}): every "
+                                             f"replica holds its mould's {name}")
+    return problems
 
 
 def _where(name: str, index: int, mould_of, replica_of, replicated) -> str:

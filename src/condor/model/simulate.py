@@ -55,6 +55,7 @@ from pathlib import Path
 
 import numpy as np
 
+from condor.files import atomic_path
 from condor.model import anneal as anneal_mod
 from condor.model import lbfgs as lbfgs_mod
 from condor.model import minimise as minimise_mod
@@ -105,12 +106,13 @@ class SimResult:
         return self.energy / max(self.n_cells, 1)
 
     def save(self, path) -> None:
-        """Write a lossless .npz (arrays as stored, scalars and info as JSON)."""
+        """Write a lossless .npz (arrays as stored, scalars and info as JSON), whole or not at
+        all (condor.files.atomic_path)."""
         meta = {
             "energy": self.energy, "solver": self.solver, "budget": self.budget,
             "seed": self.seed, "seconds": self.seconds, "status": self.status, "info": self.info,
         }
-        with open(path, "wb") as fh:
+        with atomic_path(path) as tmp, open(tmp, "wb") as fh:
             np.savez(
                 fh, positions=self.positions, orientations=self.orientations, fixed=self.fixed,
                 tension=self.tension, meta=np.array(json.dumps(meta)),

@@ -21,6 +21,7 @@ import numpy as np
 import shapely
 from shapely.geometry import MultiPolygon, Polygon, mapping, shape
 
+from condor.files import write_text
 from condor.model.lattice import HALF
 
 # The regimes of the paper's generator (condor.moulds.paper): a mould labelled with one of them
@@ -315,8 +316,8 @@ def input_channels(mould: Mould, pixels: int, supersample: int = 1) -> np.ndarra
 
 
 def save_json(mould: Mould, path) -> None:
-    """Write `mould` as JSON (exact float round trip)."""
-    Path(path).write_text(json.dumps(mould.to_dict()))
+    """Write `mould` as JSON (exact float round trip), whole or not at all (condor.files)."""
+    write_text(path, json.dumps(mould.to_dict()))
 
 
 def load_json(path) -> Mould:

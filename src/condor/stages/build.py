@@ -26,15 +26,18 @@ import json
 import logging
 import os
 import platform
+from contextlib import ExitStack
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 
 from condor.data import inputs as model_inputs
+from condor.files import atomic_path, write_text
 
 from condor import plots
-from condor.config import Config
+from condor.config import Config, recorded_splits
+from condor.folder import folder_record
 from condor.data.fields import cell_fields
 from condor.moulds.mould import PAPER, Mould, input_channels, save_json
 from condor.moulds.paper import regime_table
@@ -45,8 +48,8 @@ from condor.data.seeds import replica_seed
 from condor.model.simulate import SimResult, simulate, warm_up
 from condor.data.store_check import (check_metadata, check_store, inputs_whole, restore_layout,
                                      scan_store, set_aside)
-from condor.data.store import (create_store, open_store, sample_index, write_expected,
-                               write_inputs, write_sample)
+from condor.data.store import (create_store, open_group, open_store, sample_index,
+                               write_expected, write_inputs, write_sample)
 
 log = logging.getLogger("condor")
 
@@ -55,10 +58,7 @@ def write_json_atomic(path: str | Path, payload) -> Path:
     """Write JSON through a temporary file and a rename: readers see all of it or nothing."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + f".tmp{os.getpid()}")
-    tmp.write_text(json.dumps(payload, indent=1))
-    os.replace(tmp, path)
-    return path
+    return write_text(path, json.dumps(payload, indent=1))
 
 
 # --- 1. the store -------------------------------------------------------------------------------
@@ -72,11 +72,14 @@ def warm_kernels() -> None:
 
 def init_store(config: Config, store: str | Path, manifest: str | Path) -> bool:
     """Create the store for `config` (or keep the matching one: its samples stay) and write
-    `manifest` (what the folder holds and for which data configuration). True if created."""
+    `manifest` (what the folder holds and for which data configuration) and the folder's own
+    record of it (condor.folder.FOLDER_RECORD, beside the manifest: it outlives a deleted
+    store and manifest). True if created."""
     warm_kernels()
     created = create_store(store, config.store_spec())
-    write_json_atomic(manifest, {"store": str(store), "data_config": config.data_config(),
-                                 "created": created})
+    record = {"store": str(store), "data_config": config.data_config()}
+    write_json_atomic(folder_record(Path(manifest).parent), record)
+    write_json_atomic(manifest, {**record, "created": created})
     log.info("store %s %s", store, "created" if created else "exists and matches; kept")
     return created
 
@@ -285,12 +288,14 @@ def sample_figure(store: str | Path, out_png: str | Path, n: int = 4) -> list[in
 def mould_files(scene: Scene, seed: int, mould_id: int, params=None, out=None,
                 png=None, source: str = PAPER) -> Mould:
     """Mould `mould_id` of dataset `seed` in `scene` from `source` (make_mould: the generator
-    or a lab family), written as JSON to `out` and drawn to `png` (each when given)."""
+    or a lab family), written as JSON to `out` and drawn to `png` (each when given): both or
+    neither (condor.files.atomic_path)."""
     mould = make_mould(scene, seed, mould_id, source, params)
-    if out:
-        save_json(mould, out)
-    if png:
-        plots.mould_picture(mould, png)
+    with ExitStack() as both:
+        if out:
+            save_json(mould, both.enter_context(atomic_path(out)))
+        if png:
+            plots.mould_picture(mould, both.enter_context(atomic_path(png)))
     return mould
 
 
@@ -341,7 +346,8 @@ def rasterise_file(simulation, scene_name: str | None, out: Path) -> tuple[SimRe
     scene = get_scene(scene_name or recorded or "default")
     fields = rasterise_result(result, scene)
     if out.suffix == ".npy":
-        np.save(out, fields)
+        with atomic_path(out) as tmp:
+            np.save(tmp, fields)
     else:
         plots.field_panels([(f"{result.n_cells} cells", None, fields)], out)
     return result, scene
@@ -351,7 +357,8 @@ def store_report(store, deep: bool = False, shown: int = 20) -> tuple[list[str],
     """What `condor check-store` says of a store (check_metadata, scan_store), and whether it
     is whole; with `deep`, damaged chunk files are moved aside (set_aside)."""
     problems = check_metadata(store)
-    check = scan_store(store, deep=deep)
+    split = recorded_splits(open_group(store).attrs.get("data_config") or {})
+    check = scan_store(store, deep=deep, split=split)
     table = check.samples
     counts = table["state"].value_counts()
     lines = [f"{store}: {len(table)} samples: " + ", ".join(f"{k} {v}" for k, v in counts.items())]

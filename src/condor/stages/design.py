@@ -19,14 +19,17 @@ simulation with replicas, and hand over drawings (condor.design, docs/design.md)
 
 `force` replaces only such a folder, and only the files its mark names: a Zarr store, a
 results folder of the workflow, the current directory or one above it, and a folder holding
-any file design did not write are refused, and nothing in them is touched.
+any file design did not write are refused, and nothing in them is touched. Everything is
+written into a temporary folder beside `out_dir` first and moved in when all of it is
+written: a run that fails (a bad input, a full disk) leaves `out_dir` as it was.
 """
 
 from __future__ import annotations
 
 import json
 import logging
-import shutil
+import os
+from contextlib import contextmanager
 from dataclasses import replace
 from pathlib import Path
 
@@ -42,6 +45,7 @@ from condor.design.search import calibrated_statistic
 from condor.design.confirm import DISTINCT_FOOTPRINT, DISTINCT_POSTS
 from condor.moulds.write import drawn_mould, write_dxf, write_svg
 from condor.data.fields import FIELD_NAMES
+from condor.files import as_write_error, remove, temporary_path
 from condor.folder import LOCK_NAME, store_path
 from condor.model.lattice import build_lattice
 from condor.moulds.mould import save_json
@@ -125,10 +129,9 @@ def _some(names: list[str], n: int = 3) -> str:
     return ", ".join(names[:n]) + (f" and {len(names) - n} more" if len(names) > n else "")
 
 
-def _out_dir(out_dir, force: bool, n_top: int, scale: dict | None = None) -> Path:
-    """The output folder, ready: created, or emptied of an earlier design's files with
-    `force` (only those its mark names; anything else refuses, module docstring); then
-    marked with the files this run writes."""
+def _out_dir(out_dir, force: bool) -> Path:
+    """The output folder, checked: absent, empty of files, or (with `force`) holding an
+    earlier design's files alone (module docstring); anything else refuses."""
     out_dir = Path(out_dir)
     if out_dir.exists() and not out_dir.is_dir():
         raise DesignOutputError(f"--out {str(out_dir)!r} is a file; give a folder")
@@ -141,19 +144,45 @@ def _out_dir(out_dir, force: bool, n_top: int, scale: dict | None = None) -> Pat
         if not force:
             raise DesignOutputError(f"--out {str(out_dir)!r} holds an earlier design; pass "
                                     "--force to replace it")
-        for name in [*_owned(out_dir), MARK]:
-            path = out_dir / name
-            if path.is_dir() and not path.is_symlink():
-                shutil.rmtree(path)
-            elif path.exists() or path.is_symlink():
-                path.unlink()
-    (out_dir / "figures").mkdir(parents=True, exist_ok=True)
-    drawn = scale is not None and scale["fit_scale"] != 1.0
-    (out_dir / MARK).write_text(json.dumps({"written_by": WRITER,
-                                            "files": own_files(n_top, drawn),
-                                            **({"scale": scale} if scale else {})},
-                                           indent=1) + "\n")
     return out_dir
+
+
+@contextmanager
+def _design_folder(out_dir, force: bool, n_top: int, scale: dict | None = None):
+    """A temporary folder beside `out_dir` to write the design into (marked with the files
+    this run writes, and the drawing's `scale`); when the block ends without an error, an earlier design's files are
+    removed from `out_dir` (only those its mark names) and the new ones moved in, else the
+    temporary folder is removed and `out_dir` is as it was (condor.files)."""
+    out_dir = _out_dir(out_dir, force)
+    work = temporary_path(out_dir.resolve())
+    remove(work)
+    try:
+        (work / "figures").mkdir(parents=True)
+        drawn = scale is not None and scale["fit_scale"] != 1.0
+        (work / MARK).write_text(json.dumps({"written_by": WRITER,
+                                             "files": own_files(n_top, drawn),
+                                             **({"scale": scale} if scale else {})},
+                                            indent=1) + "\n")
+        yield work
+        if not out_dir.exists():
+            os.replace(work, out_dir)
+            return
+        for name in [*(_owned(out_dir) or []), MARK]:
+            remove(out_dir / name)
+        for entry in sorted(work.iterdir()):
+            target = out_dir / entry.name
+            if entry.name == "figures" and target.is_dir():  # made by Snakemake, or left empty
+                for figure in sorted(entry.iterdir()):
+                    os.replace(figure, target / figure.name)
+            else:
+                os.replace(entry, target)
+    except BaseException as err:
+        failed = as_write_error(err, work, out_dir)
+        if failed is not None:
+            raise failed from err
+        raise
+    finally:
+        remove(work)
 
 
 def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, seed: int,
@@ -189,7 +218,19 @@ def design(scene: Scene, checkpoint, out_dir, objective: str, *, budget: int, se
              "l0_um": None if l0_um is None else float(l0_um),
              "means": "the designs were searched and simulated at the placed size; "
                       "design_NN_drawn.* are at your drawing's size, 1 / fit_scale times it"}
-    out = _out_dir(out_dir, force, n_top, scale)
+    with _design_folder(out_dir, force, n_top, scale) as out:
+        return _search_confirm_draw(out, scene, predictor, parsed, objective, space,
+                                    budget=budget, seed=seed, n_top=n_top, n_random=n_random,
+                                    replicas=replicas, store=store, l0_um=l0_um, solver=solver,
+                                    your_moulds=your_moulds, progress=progress, keep=keep,
+                                    say=say, fit_scale=fit_scale)
+
+
+def _search_confirm_draw(out: Path, scene: Scene, predictor, parsed, objective: str, space, *,
+                         budget: int, seed: int, n_top: int, n_random: int, replicas: int, store,
+                         l0_um, solver, your_moulds, progress, keep, say,
+                         fit_scale: float) -> pd.DataFrame:
+    """design's work once its inputs are checked, written into the folder `out`."""
     spread_factor, spread_note = objective_spread_factor(parsed, predictor)
     say(spread_note)
     yours = None

@@ -22,7 +22,7 @@ import pandas as pd
 import torch
 
 from condor import plots
-from condor.config import Config
+from condor.config import Config, ConfigError
 from condor.studies.stability import run_cases
 from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
@@ -46,16 +46,26 @@ log = logging.getLogger("condor")
 def study_moulds(config: Config) -> list[int]:
     """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
     of the paper test set (the generator's moulds, as the paper reference's), then of the lab
-    test set when the paper test set holds fewer (said in the log); fewer still, said, when
-    the whole test set does."""
+    test set when the paper test set holds fewer (said in the log). ConfigError, naming the
+    key, when the whole test set holds fewer, or `report.ladder_moulds` (the ladder's, the
+    first of them) asks for more: a report never measures fewer moulds than its config says."""
     paper, lab = config.test_moulds("paper"), config.test_moulds("lab")
-    wanted = config.report["moulds"]
+    report = config.report
+    wanted = report["moulds"]
+    if wanted > len(paper) + len(lab):
+        raise ConfigError(
+            f"config key report/moulds: {wanted}, but the test set holds {len(paper) + len(lab)} "
+            f"moulds (split/test {config.split['test']}); lower report/moulds to "
+            f"{len(paper) + len(lab)} or less, or raise split/test")
+    if report["ladder_moulds"] > wanted:
+        raise ConfigError(
+            f"config key report/ladder_moulds: {report['ladder_moulds']}, but the ladder runs on "
+            f"the accuracy study's moulds, report/moulds = {wanted}: lower it")
     chosen = (paper + lab)[:wanted]
     if wanted > len(paper):
         log.warning("report.moulds is %d, but the paper test set holds %d moulds: the accuracy "
                     "study sweeps %d paper and %d lab test moulds (raise split.test, or lower "
-                    "split.lab_test)", wanted, len(paper), min(len(paper), wanted),
-                    len(chosen) - min(len(paper), wanted))
+                    "split.lab_test)", wanted, len(paper), len(paper), wanted - len(paper))
     return chosen
 
 

@@ -13,7 +13,6 @@ and data it was trained with.
 from __future__ import annotations
 
 import logging
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -21,6 +20,7 @@ from pathlib import Path
 import pandas as pd
 
 from condor.config import check_device
+from condor.files import WriteError, atomic_path, fault_message, write_fault
 from condor.model.scenes import same_length
 from condor.plots import evaluation_figures
 from condor.data.store import open_store
@@ -39,8 +39,8 @@ def working_checkpoint(checkpoint) -> Path:
 
 
 def check_checkpoint_path(checkpoint) -> Path:
-    """ValueError when `checkpoint` cannot be a checkpoint file (a directory), PermissionError
-    when its folder cannot be written: before any epoch is spent."""
+    """ValueError when `checkpoint` cannot be a checkpoint file (a directory), WriteError
+    (condor.files) when its folder cannot be written: before any epoch is spent."""
     checkpoint = Path(checkpoint)
     if checkpoint.is_dir():
         raise ValueError(f"checkpoint path {str(checkpoint)!r} is a directory; give a file "
@@ -48,8 +48,10 @@ def check_checkpoint_path(checkpoint) -> Path:
     checkpoint.parent.mkdir(parents=True, exist_ok=True)
     try:
         tempfile.TemporaryFile(dir=checkpoint.parent).close()
-    except PermissionError as err:
-        raise PermissionError(err.errno, err.strerror, str(checkpoint.parent)) from err
+    except OSError as err:
+        if write_fault(err) is None:
+            raise
+        raise WriteError(checkpoint, err.errno, fault_message(checkpoint.parent, err)) from err
     return checkpoint
 
 
@@ -81,11 +83,11 @@ def train_variant(store, settings: dict, checkpoint, history_csv=None,
             raise CheckpointMismatchError(f"{err} (pass --fresh to start over)") from err
         log_line(f"training from scratch: {err}")
         history = train(ds, cfg, work, device=device, log=log_line, resume=False)
-    tmp = checkpoint.with_name(f".{checkpoint.name}.publish")
-    shutil.copyfile(work, tmp)
-    os.replace(tmp, checkpoint)
+    with atomic_path(checkpoint) as tmp:
+        shutil.copyfile(work, tmp)
     if history_csv is not None:
-        pd.DataFrame(history).to_csv(history_csv, index=False)
+        with atomic_path(history_csv) as tmp:
+            pd.DataFrame(history).to_csv(tmp, index=False)
     return history
 
 

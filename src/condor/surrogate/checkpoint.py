@@ -3,11 +3,12 @@ written atomically, and the errors that name a missing or mismatched file."""
 
 from __future__ import annotations
 
-import contextlib
-import os
+import io
 from pathlib import Path
 
 import torch
+
+from condor.files import write_bytes
 
 from .samples import FieldScaling
 from .networks import PatchConfig, PatchDiscriminator, UNetConfig, UNetGenerator
@@ -31,20 +32,16 @@ class CheckpointMismatchError(CheckpointError):
 
 
 def save_checkpoint(state: dict, path) -> None:
-    """Write `state` to `path` via a temporary file and os.replace, so a reader (or a run
-    killed mid-write) sees either the previous checkpoint or the new one."""
+    """Write `state` to `path` whole or not at all (condor.files.write_bytes: a temporary file
+    and a rename), so a reader (or a run killed mid-write) sees either the previous checkpoint
+    or the new one. It is serialised in memory first: torch's file writer names neither the
+    file nor, plainly, the cause of a failed write (disk full, a file-size limit), and Python's
+    does (condor.files.WriteError)."""
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.tmp{os.getpid()}")
-    try:
-        torch.save({"format": FORMAT, **state}, tmp)
-    except RuntimeError as err:  # torch's writer names neither the file nor, plainly, the cause
-        with contextlib.suppress(OSError):
-            tmp.unlink(missing_ok=True)
-        cause = "permission denied" if "Permission denied" in str(err) else \
-            str(err).strip().splitlines()[0]
-        raise OSError(f"cannot write checkpoint {str(path)!r}: {cause}") from err
-    os.replace(tmp, path)
+    buffer = io.BytesIO()
+    torch.save({"format": FORMAT, **state}, buffer)
+    write_bytes(path, buffer.getbuffer())
 
 
 def weights_sha256(state: dict) -> str:

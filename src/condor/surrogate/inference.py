@@ -15,10 +15,25 @@ from .networks import UNetGenerator, inference_copy
 
 
 def default_device(device=None) -> torch.device:
-    """`device` if given, else CUDA when present, else CPU."""
-    if device is not None:
-        return torch.device(device)
-    return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    """`device` if given, else CUDA when present, else CPU. ValueError, one line, when
+    `device` is not a torch device or this machine lacks it (a CUDA device without a GPU): torch
+    would fail later with an AssertionError."""
+    if device is None:
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        chosen = torch.device(device)
+    except (RuntimeError, TypeError) as err:
+        raise ValueError(f"device {device!r} is not a torch device ({err})") from None
+    if chosen.type == "cuda" and not torch.cuda.is_available():
+        raise ValueError(f"device {device!r} asked for, but this machine has no CUDA device "
+                         "(torch sees none): leave --device out, or pass --device cpu")
+    if chosen.type == "cuda" and chosen.index is not None and \
+            chosen.index >= torch.cuda.device_count():
+        raise ValueError(f"device {device!r} asked for, but this machine has "
+                         f"{torch.cuda.device_count()} CUDA device(s)")
+    if chosen.type == "mps" and not torch.backends.mps.is_available():
+        raise ValueError(f"device {device!r} asked for, but this machine has no MPS device")
+    return chosen
 
 
 # "eval" prediction's copies of the models it ran (inference_copy), each with the identity and

@@ -40,7 +40,7 @@ def run_model(model: UNetGenerator, scaling, inputs: np.ndarray, mode: str = "ev
     predictions (8 model runs: condor.surrogate.symmetrise). `n_cells` (S,): N_c per mould, needed by a
     physics head (condor.surrogate.physics). `precision` (PRECISIONS): the network's arithmetic
     in "eval" mode (other modes run the model itself, in float32)."""
-    device = default_device(device) if device is None else torch.device(device)
+    device = default_device(device)
     native = inputs.shape[-1]
     size = model.cfg.size
     physics = getattr(scaling, "kind", None) == "physics"

@@ -4,12 +4,14 @@ given the cell spacing. (A picture of it: condor.plots.prediction_panels.)"""
 
 from __future__ import annotations
 
+import errno
 from pathlib import Path
 
 import numpy as np
 import xarray as xr
 
 from condor.data.store import quiet_zarr
+from condor.files import atomic_path
 
 from .predict import Prediction
 from .samples import FIELD_NAMES
@@ -89,11 +91,13 @@ def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
                      pixel_size: float | None = None, attrs: dict | None = None,
                      overwrite: bool = False, l0_um: float | None = None,
                      scale: float = 1.0) -> None:
-    """Write a prediction as a .zarr store (xarray, see prediction_dataset); an existing one is
-    replaced only with `overwrite`."""
+    """Write a prediction as a .zarr store (xarray, see prediction_dataset), whole or not at all
+    (condor.files.atomic_path); an existing one is replaced only with `overwrite`."""
     path = Path(path)
     if path.suffix.lower() != ".zarr":
         raise ValueError(f"prediction store {str(path)!r} must end in .zarr")
-    with quiet_zarr():
+    if path.exists() and not overwrite:
+        raise FileExistsError(errno.EEXIST, f"prediction store {str(path)!r} exists", str(path))
+    with quiet_zarr(), atomic_path(path) as tmp:
         prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale).to_zarr(
-            path, mode="w" if overwrite else "w-")
+            tmp, mode="w-")
