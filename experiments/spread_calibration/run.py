@@ -47,6 +47,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from condor.config import Config  # noqa: E402
+from condor.moulds.lab import lab_mould  # noqa: E402
 from condor.moulds.mould import Mould  # noqa: E402
 from condor.data.dataset import mould_geometry, open_dataset  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
@@ -71,16 +72,24 @@ CACHE = Path.home() / ".cache" / "condor" / "spread_calibration"
 
 
 def fit_moulds(count: int, config: Config, scene) -> list:
-    """(mould id, mould) of the first `count` generated moulds beyond n_moulds + FIT_BASE
-    that domain_table puts inside the training domain; SystemExit when too few are found."""
+    """(mould id, mould) of `count` fit moulds beyond n_moulds + FIT_BASE, drawn as the run's
+    training moulds are: a share `moulds.lab_fraction` of them from the lab families (the
+    config's, in turn: condor.moulds.lab), the rest generated moulds that domain_table puts
+    inside the generator's domain; SystemExit when too few are found."""
     base = config.n_moulds + FIT_BASE
-    found = []
-    for j in range(OOD.MAX_CANDIDATES):
+    families = config.lab_families() if config.moulds["lab_fraction"] > 0 else []
+    n_lab = int(round(config.moulds["lab_fraction"] * count)) if families else 0
+    found = [(base + j, lab_mould(config.seed, base + j, families[j % len(families)], scene,
+                                  tuple(config.moulds["lab_area"])))
+             for j in range(n_lab)]
+    for j in range(n_lab, n_lab + OOD.MAX_CANDIDATES):
+        if len(found) == count:
+            return found
         mould = OOD.draw_mould("inside", base + j, config, scene, j)
         if mould is not None and OOD.outside_on(mould, scene) == ():
             found.append((base + j, mould))
-            if len(found) == count:
-                return found
+    if len(found) == count:
+        return found
     raise SystemExit(f"only {len(found)} of {count} fit moulds inside the domain in "
                      f"{OOD.MAX_CANDIDATES} candidates")
 
