@@ -107,6 +107,7 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path, helps
     module = importlib.util.module_from_spec(spec)
     sys.modules[name] = module  # as `import` does: dataclasses look their module up there
     sys.path.insert(0, str(script.parent))  # as `python <script>` does for its own folder
+    before = set(sys.modules)
     try:
         spec.loader.exec_module(module)
     except SystemExit as err:  # a script must not run (or exit) at import
@@ -114,6 +115,12 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path, helps
     finally:
         sys.modules.pop(name, None)
         sys.path.remove(str(script.parent))
+        # its own folder's modules (a sibling `run`) go too, as with the process that
+        # `python <script>` ends: another folder's script would otherwise import this one's
+        for added in set(sys.modules) - before:
+            origin = getattr(sys.modules[added], "__file__", None) or ""
+            if Path(origin).parent == script.parent:
+                del sys.modules[added]
     if "argparse" not in text:
         pytest.skip(f"{script.name} has no argparse: --help would run its workload")
     done = helps[str(script)]
