@@ -32,8 +32,8 @@ import xarray as xr
 from condor.version import __version__
 from condor.data.fields import FIELD_NAMES, normalise
 from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS, mould_summary_statistics
-from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store,
-                               outline_polygon)
+from condor.data.geometry_arrays import outline_polygon
+from condor.data.store import FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store
 from condor.data.store_check import check_store
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
