@@ -1,4 +1,5 @@
-"""Tests of the Metropolis annealing kernel."""
+"""Tests of the Metropolis annealing kernel (condor.model.metropolis) and its driver
+(condor.model.anneal)."""
 
 import json
 
@@ -9,8 +10,10 @@ from shapely.geometry import box
 import dataclasses
 
 from condor.model.anneal import (
-    INIT_AMP_ORI, INIT_AMP_POS, KERNEL, MAX_STEP_ORI, MOVES_PER_SWEEP, T_INIT, TARGET_ACCEPT,
-    AnnealRun, Layout, anneal, gather_neighbours, orientation_change, pack_state,
+    INIT_AMP_ORI, INIT_AMP_POS, KERNEL, MOVES_PER_SWEEP, T_INIT, AnnealRun, anneal,
+)
+from condor.model.metropolis import (
+    MAX_STEP_ORI, TARGET_ACCEPT, Layout, gather_neighbours, orientation_change, pack_state,
     position_change, trial_energy_change,
 )
 from condor.model.energy import DELTA, random_orientations, total_energy

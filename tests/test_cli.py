@@ -119,8 +119,8 @@ def test_help_states_each_scenes_window_in_mm(capsys):
 
 def test_simulate_prints_the_statistics_by_predict_s_names(tmp_path):
     """condor simulate prints the whole-mould statistics under the names and units condor
-    predict prints (condor.data.fields.MOULD_STATISTICS) and keeps them in the result."""
-    from condor.data.fields import MOULD_STATISTICS, STATISTIC_UNITS
+    predict prints (condor.data.statistics.MOULD_STATISTICS) and keeps them in the result."""
+    from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS
 
     condor("mould", "--seed", 3, "--id", 1, "--scene", "tiny", "--out", "m.json", cwd=tmp_path)
     proc = condor("simulate", "m.json", "--scene", "tiny", "--out", "s.npz", "--l0-um", 16,

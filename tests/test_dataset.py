@@ -210,7 +210,7 @@ def test_score_matches_the_noise_corrected_error_computed_by_hand(replicated_sto
     assert {"r", "r_lo", "r_hi", "bias", "bias_lo", "bias_hi"} <= set(result["statistics"])
     # one vocabulary: condor's statistics under the names condor predict prints them, beside
     # the paper's that condor has no name for
-    from condor.data.fields import MOULD_STATISTICS
+    from condor.data.statistics import MOULD_STATISTICS
 
     named = list(result["statistics"]["statistic"])
     assert set(named) >= set(MOULD_STATISTICS) - {"direction"}

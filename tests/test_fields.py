@@ -1,4 +1,5 @@
-"""Tests for condor.data.fields: kernel weights, rasterisation, normalisation and statistics.
+"""Tests for condor.data.fields (kernel weights, rasterisation, normalisation) and
+condor.data.statistics (the paper's whole-mould statistics).
 
 Reference values come from independent computations: Gauss-Legendre and scipy quadrature of
 the Gaussian, a direct double loop over all pixels, block sums across resolutions, and
@@ -14,6 +15,7 @@ import pandas as pd
 import pytest
 
 from condor.data import fields as F
+from condor.data import statistics as S
 from condor.model.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
 
 PAPER_PS = PAPER_BOX / PAPER_PIXELS
@@ -370,7 +372,7 @@ def test_statistics_by_hand_at_paper_resolution():
     # A 25 l0 square (102.4 paper px -> 102 px a side, rounded) at 0.5 cells per paper pixel.
     fields = synthetic_fields(256, PAPER_PS, 25.0, 0.5, t=0.2, sx2=0.7, sy2=0.25)
     n_px = 102 * 102
-    stats = F.mould_statistics(fields, PAPER_PS)
+    stats = S.mould_statistics(fields, PAPER_PS)
     expected = {
         "mean_P": 0.5 * n_px / 65536,
         "n_P_gt_0.2": n_px,
@@ -381,25 +383,25 @@ def test_statistics_by_hand_at_paper_resolution():
         "mean_Sy2": 0.25 * 0.5 * n_px / 65536,
         "mean_Sy2_norm": 0.25,
     }
-    assert tuple(stats) == F.STATISTICS
+    assert tuple(stats) == S.STATISTICS
     for name, value in expected.items():
         assert stats[name] == pytest.approx(value, rel=1e-12), name
     # Given N_c, the normalised means are field sums over N_c (paper N_p / N_c scaling).
-    given = F.mould_statistics(fields, PAPER_PS, n_cells=2 * 0.5 * n_px)
+    given = S.mould_statistics(fields, PAPER_PS, n_cells=2 * 0.5 * n_px)
     assert given["mean_T_norm"] == pytest.approx(0.1, rel=1e-12)
     assert given["mean_P"] == stats["mean_P"]
 
 
 def test_density_below_threshold_is_not_counted():
     fields = synthetic_fields(256, PAPER_PS, 25.0, 0.19, t=0.0, sx2=0.0, sy2=0.0)
-    assert F.mould_statistics(fields, PAPER_PS)["n_P_gt_0.2"] == 0.0
+    assert S.mould_statistics(fields, PAPER_PS)["n_P_gt_0.2"] == 0.0
 
 
 def test_statistics_by_hand_are_resolution_independent():
     # The same mould (a 25 l0 square at 0.5 cells per paper pixel) on a 62.5 l0 box at
     # 128 px (pixel 2 l_p) and 256 px: each pixel holds 4x the cells at 128 px.
     coarse = synthetic_fields(128, 2 * PAPER_PS, 25.0, 0.5, t=0.2, sx2=0.7, sy2=0.25)
-    stats = F.mould_statistics(coarse, 2 * PAPER_PS)
+    stats = S.mould_statistics(coarse, 2 * PAPER_PS)
     n_paper_px = 51 * 51 * 4  # 51 coarse pixels a side, each 4 paper pixels
     assert stats["n_P_gt_0.2"] == pytest.approx(n_paper_px)
     assert stats["mean_P"] == pytest.approx(0.5 * n_paper_px / 65536)
@@ -412,7 +414,7 @@ def test_statistics_of_rasterised_cells_agree_across_resolutions():
     by_res = {}
     for pixels in (64, 128, 256):
         fields = F.cell_fields(xy, s, tau, box, pixels)
-        by_res[pixels] = F.mould_statistics(fields, box / pixels)
+        by_res[pixels] = S.mould_statistics(fields, box / pixels)
     # Means are exact (field sums): mean_P = N_c l_p^2 / box^2 at every resolution.
     for pixels, stats in by_res.items():
         assert stats["mean_P"] == pytest.approx(1500 * PAPER_PS**2 / box**2, rel=1e-5)
@@ -426,20 +428,20 @@ def test_statistics_without_n_cells_use_the_density_sum():
     box, pixels = 31.25, 64
     xy, s, tau = random_cells(900, box, margin=6 * SIGMA_L0, seed=12)
     fields = F.cell_fields(xy, s, tau, box, pixels)
-    free = F.mould_statistics(fields, box / pixels)
-    given = F.mould_statistics(fields, box / pixels, n_cells=900)
-    for name in F.STATISTICS:
+    free = S.mould_statistics(fields, box / pixels)
+    given = S.mould_statistics(fields, box / pixels, n_cells=900)
+    for name in S.STATISTICS:
         assert free[name] == pytest.approx(given[name], rel=1e-5, abs=1e-9)
 
 
 def test_statistics_table_has_one_row_per_sample():
     box, pixels = 15.625, 32
     samples = [F.cell_fields(*random_cells(200, box, 4.0, seed), box, pixels) for seed in (13, 14)]
-    table = F.statistics_table(np.stack(samples), box / pixels)
+    table = S.statistics_table(np.stack(samples), box / pixels)
     assert isinstance(table, pd.DataFrame)
-    assert list(table.columns) == list(F.STATISTICS) and len(table) == 2
+    assert list(table.columns) == list(S.STATISTICS) and len(table) == 2
     for i, fields in enumerate(samples):
-        assert table.iloc[i].to_dict() == pytest.approx(F.mould_statistics(fields, box / pixels))
+        assert table.iloc[i].to_dict() == pytest.approx(S.mould_statistics(fields, box / pixels))
 
 
 # --- bad input ------------------------------------------------------------------------------
@@ -464,10 +466,10 @@ def test_statistics_table_has_one_row_per_sample():
         (lambda: F.cell_fields(np.ones((2, 4)), np.eye(3)[:2], np.ones(2), 10.0, 16), "positions"),
         (lambda: F.normalise(np.ones((8, 4, 4)), 0), "n_cells"),
         (lambda: F.normalise(np.ones((2, 8, 4, 4)), np.ones(3)), "n_cells"),
-        (lambda: F.mould_statistics(np.ones((7, 4, 4)), 1.0), "fields"),
-        (lambda: F.mould_statistics(np.full((8, 4, 4), np.nan), 1.0), "fields.*NaN"),
-        (lambda: F.mould_statistics(np.zeros((8, 4, 4)), 1.0), "n_cells"),
-        (lambda: F.statistics_table(np.ones((8, 4, 4)), 1.0), "fields_batch"),
+        (lambda: S.mould_statistics(np.ones((7, 4, 4)), 1.0), "fields"),
+        (lambda: S.mould_statistics(np.full((8, 4, 4), np.nan), 1.0), "fields.*NaN"),
+        (lambda: S.mould_statistics(np.zeros((8, 4, 4)), 1.0), "n_cells"),
+        (lambda: S.statistics_table(np.ones((8, 4, 4)), 1.0), "fields_batch"),
         (lambda: F.pixel_weights(np.ones((2, 2)), 16, 1.0, 1.0), "coord"),
         (lambda: F.pixel_weights(np.array([1.0, 1e300]), 16, 1.0, 1.0), "coord.*too far"),
     ],

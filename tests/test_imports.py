@@ -1,6 +1,7 @@
 """The import graph of src/condor against the floors of docs/architecture.md: every module is
 on a floor, the floors below the top are folders, no import (at module level or inside a
-function) climbs a floor, and no modules import each other in a circle."""
+function) climbs a floor, and no modules import each other in a circle. And the size bar: no
+module of src/condor over MODULE_LINES lines, no function of cli.py over CLI_FUNCTION_LINES."""
 
 import ast
 import re
@@ -9,6 +10,8 @@ from pathlib import Path
 REPO = Path(__file__).resolve().parents[1]
 SRC = REPO / "src" / "condor"
 ARCHITECTURE = REPO / "docs" / "architecture.md"
+MODULE_LINES = 600  # a module longer than this is split along its ideas
+CLI_FUNCTION_LINES = 40  # a command or parser function of cli.py longer than this is split
 
 
 def floors() -> list[tuple[str, list[str]]]:
@@ -147,3 +150,17 @@ def test_import_condor_makes_openmp_threads_sleep_unless_told_otherwise():
     kept = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
                           capture_output=True, text=True, check=True).stdout.strip()
     assert (unset, kept) == ("PASSIVE", "ACTIVE")
+
+
+def test_no_module_is_over_the_line_bar():
+    long = [f"{path.relative_to(REPO)}: {n} lines" for path in sorted(SRC.rglob("*.py"))
+            if (n := len(path.read_text().splitlines())) > MODULE_LINES]
+    assert not long, f"modules over {MODULE_LINES} lines:\n" + "\n".join(long)
+
+
+def test_no_function_of_the_cli_is_over_the_line_bar():
+    tree = ast.parse((SRC / "cli.py").read_text())
+    long = [f"{node.name}: {node.end_lineno - node.lineno + 1} lines" for node in tree.body
+            if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
+            and node.end_lineno - node.lineno + 1 > CLI_FUNCTION_LINES]
+    assert not long, f"functions of cli.py over {CLI_FUNCTION_LINES} lines:\n" + "\n".join(long)

@@ -114,7 +114,7 @@ def test_with_training_moulds_appends_the_other_stores_training_split():
 
 
 def test_statistics_of_keeps_the_leading_shape():
-    from condor.data.fields import STATISTICS
+    from condor.data.statistics import STATISTICS
 
     fields = np.random.default_rng(3).uniform(0, 1, (3, 2, 8, 6, 6))
     stats = scoring.statistics_of(fields, 0.5)

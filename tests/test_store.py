@@ -10,8 +10,9 @@ import shapely
 import xarray as xr
 import zarr
 
-from condor.data.store import (FIELD_NAMES, FORMAT_CHANGES, FORMAT_VERSION, MAX_TETHERS, MAX_VERTICES, StoreError,
-                               StoreSpec, assign_splits, create_store, open_store, outline_polygon,
+from condor.data.geometry_arrays import MAX_TETHERS, MAX_VERTICES, outline_polygon
+from condor.data.store import (FIELD_NAMES, FORMAT_CHANGES, FORMAT_VERSION, StoreError,
+                               StoreSpec, assign_splits, create_store, open_store,
                                sample_index, sample_layout, write_expected, write_inputs,
                                write_sample)
 from condor.data.store_check import (check_store, check_metadata, chunk_file, inputs_whole,

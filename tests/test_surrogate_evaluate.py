@@ -62,9 +62,9 @@ def test_statistics_and_correlations_against_corrcoef():
         assert table.loc[name, "r"] == pytest.approx(np.corrcoef(sim[name], prd[name])[0, 1], rel=1e-10)
     assert table.loc["mean_P", "paper_r"] == 0.881 and table.loc["mean_T_norm", "paper_relation"] == ">"
     # The project's real statistics, when present, go through the same path.
-    fields = pytest.importorskip("condor.data.fields")
+    statistics = pytest.importorskip("condor.data.statistics")
     real = statistics_frame(true.astype(np.float32), 0.5)
-    assert list(real.columns) == list(fields.STATISTICS)
+    assert list(real.columns) == list(statistics.STATISTICS)
     np.testing.assert_allclose(real["mean_T_norm"], true[:, 1].sum(axis=(1, 2)) / true[:, 0].sum(axis=(1, 2)), rtol=1e-5)
 
 

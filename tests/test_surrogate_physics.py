@@ -20,7 +20,7 @@ from condor.surrogate.calibration import (checkerboard, interval_coverage, sprea
 from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.samples import FIELD_NAMES, apply_symmetry, usable_samples
 from condor.surrogate.networks import UNetConfig, UNetGenerator
-from condor.data.fields import mould_statistics
+from condor.data.statistics import mould_statistics
 from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,
                                       n_cells_of_mould)
 from condor.surrogate.predict import Predictor, predict

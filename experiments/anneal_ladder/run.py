@@ -52,6 +52,7 @@ import pandas as pd  # noqa: E402
 
 from condor.config import Config  # noqa: E402
 from condor.model import anneal as anneal_mod  # noqa: E402
+from condor.model import metropolis  # noqa: E402
 from condor.model.energy import DELTA, cell_tension, lattice_energy, random_orientations  # noqa: E402
 from condor.measures.estimators import (  # noqa: E402
     bootstrap_interval, ensemble_distance, noise_ceiling, root_mean,
@@ -383,8 +384,8 @@ def trace(scene, mould_id: int, budget: float, segments: int, replica: int, ftol
             "energy_per_cell": energy / lattice.n_cells,
             "accept_pos": acc_pos / (n_trials / 2), "accept_ori": acc_ori / (n_trials / 2),
             "amp_pos": float(amp[0]), "amp_ori": float(amp[1]),
-            "step_pos": min(float(amp[0]) * math.sqrt(temp), anneal_mod.MAX_STEP_POS),
-            "step_ori": min(float(amp[1]) * math.sqrt(temp), anneal_mod.MAX_STEP_ORI),
+            "step_pos": min(float(amp[0]) * math.sqrt(temp), metropolis.MAX_STEP_POS),
+            "step_ori": min(float(amp[1]) * math.sqrt(temp), metropolis.MAX_STEP_ORI),
             "inverted_fraction": float(np.mean(signed_volumes(pos, lattice.tets) <= 0)),
             "min_nn_length": float(nn_len.min()),
             "nn_order": orientation_order(lattice, ori)[0],

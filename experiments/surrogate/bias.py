@@ -23,7 +23,7 @@ import pandas as pd
 
 from condor.data.dataset import open_dataset
 from condor.measures.estimators import statistic_agreement
-from condor.data.fields import STATISTICS
+from condor.data.statistics import STATISTICS
 from condor.studies.scoring import predict_replica_moulds, statistics_of, study_dataset
 from condor.surrogate.samples import dataset_pixel_size
 

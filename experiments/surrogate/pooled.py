@@ -37,7 +37,7 @@ import torch
 
 import condor
 from condor.measures import estimators as est
-from condor.data.fields import STATISTICS
+from condor.data.statistics import STATISTICS
 from condor.measures.metrics import normalise_predicted
 from condor.studies import accuracy as accuracy_study
 from condor.studies.recipes import reference_ensemble

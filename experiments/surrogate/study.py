@@ -32,7 +32,7 @@ import torch
 from condor.data.dataset import open_dataset
 from condor.measures.estimators import (bootstrap_interval, mse_against_expected, noise_ceiling,
                                root_mean, statistic_agreement)
-from condor.data.fields import STATISTICS
+from condor.data.statistics import STATISTICS
 from condor.studies.scoring import statistics_of, study_dataset
 from condor.surrogate.calibration import (checkerboard, interval_coverage, spread_agreement,
                                           tissue_pixels)

@@ -8,6 +8,7 @@ import argparse
 import sys
 from pathlib import Path
 
+from condor.completion import completion_script
 from condor.data.store import SPLITS
 from condor.files import WriteError, fault_message, write_fault
 from condor.model.scenes import PRESETS, get_scene
@@ -299,7 +300,7 @@ def cmd_design(args) -> None:
 
 
 def cmd_completion(args) -> None:
-    sys.stdout.write(completion_script())
+    sys.stdout.write(completion_script(build_parser()))
 
 
 # --- the parser: one function a subcommand ------------------------------------------------------
@@ -548,38 +549,6 @@ def build_parser() -> argparse.ArgumentParser:
         if child.description is None:
             child.description = action.help
     return parser
-
-
-def completion_script(parser: argparse.ArgumentParser | None = None) -> str:
-    """A bash completion script for `condor`: subcommands, then each one's options (files
-    otherwise), generated from the parser so that it never goes stale."""
-    parser = parser or build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    cases = []
-    for name, child in sub.choices.items():
-        options = sorted(o for a in child._actions for o in a.option_strings)
-        cases.append(f'        {name}) opts="{" ".join(options)}" ;;')
-    commands = " ".join(sub.choices)
-    return "\n".join([
-        "# bash completion for condor (condor completion)",
-        "_condor() {",
-        "    local cur=${COMP_WORDS[COMP_CWORD]} opts",
-        "    if [ \"$COMP_CWORD\" -eq 1 ]; then",
-        f"        COMPREPLY=($(compgen -W \"{commands} --help --version\" -- \"$cur\"))",
-        "        return",
-        "    fi",
-        "    case ${COMP_WORDS[1]} in",
-        *cases,
-        "        *) opts=\"\" ;;",
-        "    esac",
-        "    if [[ $cur == -* ]]; then",
-        "        COMPREPLY=($(compgen -W \"$opts\" -- \"$cur\"))",
-        "    else",
-        "        COMPREPLY=($(compgen -f -- \"$cur\"))",
-        "    fi",
-        "}",
-        "complete -o filenames -F _condor condor",
-        ""])
 
 
 def main(argv: list[str] | None = None) -> None:

@@ -30,10 +30,10 @@ import pandas as pd
 import xarray as xr
 
 from condor.version import __version__
-from condor.data.fields import (FIELD_NAMES, MOULD_STATISTICS, STATISTIC_UNITS,
-                                mould_summary_statistics, normalise)
-from condor.data.store import (FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store,
-                               outline_polygon)
+from condor.data.fields import FIELD_NAMES, normalise
+from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS, mould_summary_statistics
+from condor.data.geometry_arrays import outline_polygon
+from condor.data.store import FORMAT_VERSION, GEOMETRY_ARRAYS, SPLITS, StoreError, open_store
 from condor.data.store_check import check_store
 
 # What torch_dataset yields, per item (documented shapes: the card and the tests use them).
@@ -300,7 +300,7 @@ def card(store, config: dict | None = None) -> str:
     if expected is not None:
         lines += ["## Whole-mould statistics of the replicated moulds' expected fields", "",
                   "Under the names `condor predict`, `condor simulate` and `condor.score` use "
-                  "(condor.data.fields.mould_summary_statistics; docs/fields.md defines each):",
+                  "(condor.data.statistics.mould_summary_statistics; docs/fields.md defines each):",
                   "", _markdown(expected), ""]
     lines += [
         "## How to load it",

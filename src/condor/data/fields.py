@@ -1,4 +1,4 @@
-"""Rasterise cells into the paper's 8 fields and compute whole-mould statistics.
+"""Rasterise cells into the paper's 8 fields, and normalise them.
 
 The paper's kernel density estimate (Machine learning section): every cell i with value z_i
 adds z_i * w_{i,p} to pixel p, where w_{i,p} is the integral over the pixel of an isotropic
@@ -14,6 +14,7 @@ mass (see `docs/fields.md`). Mass that falls outside the grid is lost (not wrapp
 folded back).
 
 Channels, in order: P (density, value 1), T (tension tau), Sx2, Sy2, Sz2, SxSy, SxSz, SySz.
+The whole-mould statistics of the fields: condor.data.statistics.
 """
 
 from __future__ import annotations
@@ -23,40 +24,14 @@ import math
 
 import numba
 import numpy as np
-import pandas as pd
 
-from condor.model.scenes import PAPER_BOX, PAPER_PIXELS, SIGMA_L0
+from condor.model.scenes import SIGMA_L0
 
 FIELD_NAMES = ("P", "T", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz")
-
-STATISTICS = (
-    "mean_P",
-    "n_P_gt_0.2",
-    "mean_T",
-    "mean_T_norm",
-    "mean_Sx2",
-    "mean_Sx2_norm",
-    "mean_Sy2",
-    "mean_Sy2_norm",
-)
-
-# The whole-mould statistics condor answers with (`mould_summary_statistics`; what predict,
-# simulate, predict --check, design and condor.score print, under these names), each with its
-# unit. docs/fields.md, "Whole-mould statistics", defines each once, beside the paper's
-# (STATISTICS, `mould_statistics`: kept where the paper's r is compared).
-MOULD_STATISTICS = ("alignment", "direction", "alignment_x", "mean_tension", "tissue_area")
-STATISTIC_UNITS = {"alignment": "0..1", "direction": "deg from x", "alignment_x": "-1..1",
-                   "mean_tension": "T units", "tissue_area": "l0^2"}
 
 # Half-width of the kernel window in sigma. Per axis the neglected mass is
 # erfc(5.5 / sqrt 2) = 3.8e-8, so at most 7.6e-8 of a cell's 2-D mass is dropped.
 WINDOW_SIGMAS = 5.5
-
-# The paper's pixel side l_p (62.5 l0 / 256 = 125 l0 / 512): statistics are expressed in it.
-PAPER_PIXEL_SIZE = PAPER_BOX / PAPER_PIXELS
-
-# The paper's area threshold: density above 0.2 cells per paper pixel.
-DENSITY_THRESHOLD = 0.2
 
 
 def window_width(pixels_per_sigma: float) -> int:
@@ -165,7 +140,7 @@ def pixel_weights(
     coord = np.asarray(coord, dtype=np.float64)
     if coord.ndim != 1:
         raise ValueError(f"coord must be 1-D, got shape {coord.shape}")
-    _check_finite("coord", coord)
+    check_finite("coord", coord)
     _check_grid(pixels, pixel_size, sigma)
     coord_px = coord / pixel_size
     if coord.size and np.abs(coord_px).max() > 1e15:  # floor() to int64 would overflow
@@ -441,8 +416,8 @@ def rasterise(
         raise ValueError(
             f"values must have shape (N, C) with N = {xy.shape[0]} cells, got {values.shape}"
         )
-    _check_finite("xy", xy)
-    _check_finite("values", values)
+    check_finite("xy", xy)
+    check_finite("values", values)
     _check_grid(pixels, box, sigma)
     grid = _fields64(xy, values, box, pixels, sigma, threads)
     return np.ascontiguousarray(grid.transpose(2, 0, 1), dtype=np.float32)
@@ -461,8 +436,8 @@ def cell_values(orientations: np.ndarray, tension: np.ndarray) -> np.ndarray:
         raise ValueError(f"orientations must have shape (N, 3), got {s.shape}")
     if tau.shape != (s.shape[0],):
         raise ValueError(f"tension must have shape ({s.shape[0]},), got {tau.shape}")
-    _check_finite("orientations", s)
-    _check_finite("tension", tau)
+    check_finite("orientations", s)
+    check_finite("tension", tau)
     norms = np.linalg.norm(s, axis=1)
     bad = np.flatnonzero(np.abs(norms - 1.0) > 1e-3)
     if bad.size:
@@ -524,92 +499,8 @@ def normalise(fields: np.ndarray, n_cells) -> np.ndarray:
     return (fields * scale).astype(dtype)
 
 
-def mould_statistics(
-    fields: np.ndarray, pixel_size: float, n_cells: float | None = None
-) -> dict[str, float]:
-    """The paper's whole-mould statistics (Results section) of one sample's 8 fields.
-
-    fields: (8, H, W) un-normalised fields; pixel_size: l0. n_cells: N_c for the
-    normalised means; None uses the density sum P.sum() (as for predicted fields).
-    Resolution-independent definitions, in the paper's pixel l_p = 62.5/256 l0
-    (at the paper's 256 px over 62.5 l0 they reduce to the paper's own):
-      mean_P, mean_T, mean_Sx2, mean_Sy2: mean over all grid pixels of the field expressed
-          per paper pixel area (field * (l_p / pixel_size)^2) = field sum * l_p^2 / box^2.
-      n_P_gt_0.2: area, in paper pixels, where P exceeds 0.2 cells per paper pixel.
-      mean_X_norm: mean over all pixels of normalise(X) = X.sum() / N_c, a cell average.
-    """
-    fields = np.asarray(fields, dtype=np.float64)
-    if fields.ndim != 3 or fields.shape[0] != len(FIELD_NAMES):
-        raise ValueError(f"fields must have shape (8, H, W), got {fields.shape}")
-    _check_finite("fields", fields)
-    if not (np.isfinite(pixel_size) and pixel_size > 0):
-        raise ValueError(f"pixel_size must be positive, got {pixel_size}")
-    density, tension, sx2, sy2 = (fields[FIELD_NAMES.index(n)] for n in ("P", "T", "Sx2", "Sy2"))
-    if n_cells is None:
-        n_cells = float(density.sum())
-    if not (np.isfinite(n_cells) and n_cells > 0):
-        raise ValueError(f"n_cells (or the density sum) must be positive, got {n_cells}")
-    # Grid pixels per paper pixel: converts per-pixel sums to per-paper-pixel densities.
-    per_paper_pixel = (PAPER_PIXEL_SIZE / pixel_size) ** 2
-    return {
-        "mean_P": float(density.mean() * per_paper_pixel),
-        "n_P_gt_0.2": float(np.count_nonzero(density * per_paper_pixel > DENSITY_THRESHOLD))
-        / per_paper_pixel,
-        "mean_T": float(tension.mean() * per_paper_pixel),
-        "mean_T_norm": float(tension.sum() / n_cells),
-        "mean_Sx2": float(sx2.mean() * per_paper_pixel),
-        "mean_Sx2_norm": float(sx2.sum() / n_cells),
-        "mean_Sy2": float(sy2.mean() * per_paper_pixel),
-        "mean_Sy2_norm": float(sy2.sum() / n_cells),
-    }
-
-
-def mould_summary_statistics(normalised: np.ndarray, n_cells: float, pixel_size: float) -> dict:
-    """The whole-mould statistics (MOULD_STATISTICS) of one mould's normalised fields
-    (8, H, W); n_cells: N_c (to undo the normalisation for the area); pixel_size: l0.
-
-    Ratios of sums over the normalised fields, so they read the same at any normalisation:
-    alignment, the in-plane nematic order of the whole mould along its principal direction,
-    |(sum(Sx2 - Sy2), 2 sum SxSy)| / sum(Sx2 + Sy2) in [0, 1]; direction, that direction in
-    degrees from x in (-90, 90]; alignment_x, sum(Sx2 - Sy2) / sum(Sx2 + Sy2) in [-1, 1];
-    mean_tension, sum T / sum P (the paper's mean T normalised, mean_T_norm, for a mould away
-    from the grid's edge); tissue_area, the area in l0^2 where the density exceeds
-    DENSITY_THRESHOLD cells per paper pixel (the paper's n_P_gt_0.2 times the paper pixel's
-    area)."""
-    f = np.asarray(normalised, dtype=np.float64)
-    total = f.sum(axis=(-2, -1))
-    p, t, sx2, sy2, sxsy = (total[FIELD_NAMES.index(n)] for n in ("P", "T", "Sx2", "Sy2", "SxSy"))
-    along, shear, in_plane = sx2 - sy2, 2 * sxsy, sx2 + sy2
-    raw_density = f[FIELD_NAMES.index("P")] * float(n_cells) / f[0].size  # cells per grid pixel
-    per_paper_pixel = (PAPER_PIXEL_SIZE / pixel_size) ** 2
-    area = np.count_nonzero(raw_density * per_paper_pixel > DENSITY_THRESHOLD) * pixel_size ** 2
-    return {"alignment": math.hypot(along, shear) / in_plane if in_plane > 0 else math.nan,
-            "direction": 0.5 * math.degrees(math.atan2(shear, along)),
-            "alignment_x": along / in_plane if in_plane > 0 else math.nan,
-            "mean_tension": t / p if p > 0 else math.nan,
-            "tissue_area": float(area)}
-
-
-def statistics_table(
-    fields_batch: np.ndarray, pixel_size: float, n_cells: np.ndarray | None = None
-) -> pd.DataFrame:
-    """mould_statistics for each sample of fields_batch (S, 8, H, W): a DataFrame with one
-    row per sample (index 0..S-1) and the columns STATISTICS. n_cells: (S,) or None."""
-    fields_batch = np.asarray(fields_batch)
-    if fields_batch.ndim != 4:
-        raise ValueError(f"fields_batch must have shape (S, 8, H, W), got {fields_batch.shape}")
-    if n_cells is not None and np.shape(n_cells) != (fields_batch.shape[0],):
-        raise ValueError(
-            f"n_cells must have shape ({fields_batch.shape[0]},), got {np.shape(n_cells)}"
-        )
-    rows = [
-        mould_statistics(fields, pixel_size, None if n_cells is None else float(n_cells[s]))
-        for s, fields in enumerate(fields_batch)
-    ]
-    return pd.DataFrame(rows, columns=list(STATISTICS))
-
-
-def _check_finite(name: str, array: np.ndarray) -> None:
+def check_finite(name: str, array: np.ndarray) -> None:
+    """ValueError naming `name` and the first index where `array` holds NaN or inf."""
     if not np.all(np.isfinite(array)):
         bad = np.argwhere(~np.isfinite(array))[0]
         raise ValueError(f"{name} contains NaN or inf, first at index {tuple(bad.tolist())}")

@@ -11,7 +11,8 @@ import numpy as np
 import pandas as pd
 
 from condor.measures.estimators import pearson_r
-from condor.data.fields import FIELD_NAMES, STATISTICS, mould_statistics, normalise
+from condor.data.fields import FIELD_NAMES, normalise
+from condor.data.statistics import STATISTICS, mould_statistics
 
 # The paper's Pearson r (Results): 0.881 for mean density, "above 0.98" for the others.
 PAPER_R_MEAN_DENSITY = 0.881
@@ -64,7 +65,7 @@ def best_worst(mae: pd.DataFrame, field: str, n: int = 6) -> tuple[list, list]:
 
 def statistics_frame(fields: np.ndarray, pixel_size: float, sample_ids=None, n_cells=None,
                      statistics_fn=None) -> pd.DataFrame:
-    """`statistics_fn` (default condor.data.fields.mould_statistics) per sample (rows). n_cells None:
+    """`statistics_fn` (default condor.data.statistics.mould_statistics) per sample (rows). n_cells None:
     each sample's own density sum (as for predictions). A sample it rejects (P summing to
     <= 0) gets NaN."""
     paper = statistics_fn is None

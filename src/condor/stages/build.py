@@ -317,11 +317,12 @@ def simulate_placed(placement, scene: Scene, solver: str | None, budget, seed: i
 def simulated_statistics(result: SimResult, scene: Scene, l0_um: float | None = None,
                          scale: float = 1.0) -> pd.DataFrame:
     """The whole-mould statistics of one simulation, under the names and units `condor
-    predict` prints them (condor.data.fields.mould_summary_statistics, on the scene's grid):
+    predict` prints them (condor.data.statistics.mould_summary_statistics, on the scene's grid):
     `statistic`, `value`, `spread` (NaN: one simulation has none), `unit`; tissue_area_mm2
     (given l0_um) at the drawn size, as predict's."""
-    from condor.data.fields import (MOULD_STATISTICS, STATISTIC_UNITS, mould_summary_statistics,
-                                    normalise)
+    from condor.data.fields import normalise
+    from condor.data.statistics import (MOULD_STATISTICS, STATISTIC_UNITS,
+                                        mould_summary_statistics)
 
     raw = cell_fields(result.positions, result.orientations, result.tension, scene.box,
                       scene.pixels, scene.sigma)

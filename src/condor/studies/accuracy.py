@@ -10,7 +10,7 @@ dataset solver's own "single simulation" and "mean of k simulations") this modul
   seconds per mould. The row "single simulation" is the noise ceiling: what one run of the
   dataset's solver scores.
 - `statistics` rows: for each whole-mould statistic (STATISTICS: condor's, as `condor predict`
-  names them, condor.data.fields.MOULD_STATISTICS, then the paper's that condor has no name
+  names them, condor.data.statistics.MOULD_STATISTICS, then the paper's that condor has no name
   for), the method's Pearson r against the expected statistic (the replica mean's noise removed; `r_plain`: against the
   replica mean as it is) with its interval and n, the ceiling r a perfect predictor reaches
   against one simulation, the bias (median of method / replica mean - 1) and the paper's r.
@@ -28,7 +28,8 @@ import numpy as np
 import pandas as pd
 
 from condor.measures import estimators as est
-from condor.data.fields import FIELD_NAMES, mould_summary_statistics, normalise
+from condor.data.fields import FIELD_NAMES, normalise
+from condor.data.statistics import mould_summary_statistics
 from condor.measures.metrics import normalise_predicted, paper_r, statistics_frame
 from condor.surrogate.calibration import interval_coverage, spread_agreement, tissue_pixels
 
@@ -108,7 +109,7 @@ def _normalised(answer: Answer, n_cells: np.ndarray) -> np.ndarray:
 
 def statistics_of(raw: np.ndarray, pixel_size: float, n_cells) -> np.ndarray:
     """(M, len(STATISTICS)) of raw fields (M, 8, H, W); n_cells None: own density sums.
-    condor's statistics (condor.data.fields.mould_summary_statistics) of the fields normalised
+    condor's statistics (condor.data.statistics.mould_summary_statistics) of the fields normalised
     by N_c (or the density sum), the paper's (statistics_frame) beside them; NaN for a mould
     whose fields are not finite."""
     raw = np.asarray(raw)

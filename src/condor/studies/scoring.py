@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from condor.measures.estimators import bootstrap_interval, mse_against_expected
-from condor.data.fields import STATISTICS, mould_statistics
+from condor.data.statistics import STATISTICS, mould_statistics
 
 
 def _ratio(pairs: np.ndarray) -> float:
@@ -158,7 +158,7 @@ def predict_replica_moulds(checkpoint, ds, mould_ids) -> np.ndarray:
 
 
 def statistics_of(fields, pixel_size: float) -> np.ndarray:
-    """Whole-mould statistics (condor.data.fields.STATISTICS) of fields (..., 8, H, W) ->
+    """Whole-mould statistics (condor.data.statistics.STATISTICS) of fields (..., 8, H, W) ->
     (..., n_statistics); N_c is each field set's own density sum."""
     fields = np.asarray(fields)
     flat = fields.reshape(-1, *fields.shape[-3:])

@@ -2,7 +2,7 @@
 predicted spread of one simulation about it, and where the mould sits against the training
 moulds (docs/user_moulds.md, "What predict prints").
 
-The statistics (computed by `statistics`, which is condor.data.fields.mould_summary_statistics,
+The statistics (computed by `statistics`, which is condor.data.statistics.mould_summary_statistics,
 their one home; docs/fields.md defines each once) are ratios of sums over the normalised
 fields (condor.design.objectives), so they read the same at any normalisation:
 
@@ -13,8 +13,9 @@ fields (condor.design.objectives), so they read the same at any normalisation:
   alignment_x    the same along x (objective alignment:x), in [-1, 1].
   mean_tension   sum T / sum P, the mean cell tension (the paper's T-bar; objective
                  mean_tension), in the fields' units of tension.
-  tissue_area    the area where the density exceeds condor.data.fields.DENSITY_THRESHOLD cells per
-                 paper pixel (the paper's N(P > 0.2)), in l0^2 and, given l0_um, mm^2.
+  tissue_area    the area where the density exceeds condor.data.statistics.DENSITY_THRESHOLD
+                 cells per paper pixel (the paper's N(P > 0.2)), in l0^2 and, given l0_um,
+                 mm^2.
   reproducibility  the reproducibility map's root mean square over the tissue pixels and the 8
                  fields (normalised units): how far one simulation scatters about the expected
                  fields; larger is less reproducible (the measure by which the surrogate ranks
@@ -39,8 +40,10 @@ import math
 import numpy as np
 import pandas as pd
 
-from condor.data.fields import FIELD_NAMES, MOULD_STATISTICS, STATISTIC_UNITS
-from condor.data.fields import mould_summary_statistics as statistics  # one home: data.fields
+from condor.data.fields import FIELD_NAMES
+from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS
+# one home: data.statistics
+from condor.data.statistics import mould_summary_statistics as statistics
 
 _P = FIELD_NAMES.index("P")
 

@@ -1,7 +1,8 @@
 """Evaluation on the test split, as the paper reports it: per-field MAE per sample, the best
-and worst samples for Sx2 and T, and whole-mould statistics (condor.data.fields.mould_statistics)
-of simulation against prediction with their Pearson r, next to the paper's values. Baselines
-(baselines.py) and BatchNorm/dropout prediction modes are evaluated with the same metrics."""
+and worst samples for Sx2 and T, and whole-mould statistics
+(condor.data.statistics.mould_statistics) of simulation against prediction with their Pearson
+r, next to the paper's values. Baselines (baselines.py) and BatchNorm/dropout prediction modes
+are evaluated with the same metrics."""
 
 from __future__ import annotations
 

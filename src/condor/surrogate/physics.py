@@ -256,9 +256,9 @@ def check_field_weights(weights) -> np.ndarray:
 
 
 def area_threshold_per_pixel(pixel_size: float) -> float:
-    """The paper's N(P>0.2) threshold (fields.DENSITY_THRESHOLD cells per paper pixel) in
-    cells per pixel of side `pixel_size` (l0), as fields.mould_statistics applies it."""
-    from condor.data.fields import DENSITY_THRESHOLD, PAPER_PIXEL_SIZE
+    """The paper's N(P>0.2) threshold (statistics.DENSITY_THRESHOLD cells per paper pixel) in
+    cells per pixel of side `pixel_size` (l0), as statistics.mould_statistics applies it."""
+    from condor.data.statistics import DENSITY_THRESHOLD, PAPER_PIXEL_SIZE
     return DENSITY_THRESHOLD * (float(pixel_size) / PAPER_PIXEL_SIZE) ** 2
 
 
