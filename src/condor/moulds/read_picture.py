@@ -7,7 +7,8 @@ The rules (docs/user_moulds.md, "Pictures", states them for users):
 
 - **Brightness.** The picture is read by its brightness (luminance; transparency counts as
   white), smoothed (SMOOTH_PER_PX of its smaller side, in SMOOTH_RANGE_PX pixels), and corrected for uneven lighting: a
-  quadratic surface fitted to the background divides it out.
+  quadratic surface fitted to the background divides it out, where the picture's edge shows
+  uneven lighting (its 5-95% range over EVEN_EDGE of the picture's range).
 - **Background and polarity.** The background is the level of the picture's edge (its median
   there). The mould is the largest connected region that differs from it and does not touch
   the edge (a dark mould on a light background or a light one on a dark background alike).
@@ -51,6 +52,7 @@ from condor.moulds.shapes import Circle, Drawing, Ring, Shapes, finish_drawing
 
 PICTURE_SUFFIXES = (".png", ".tif", ".tiff", ".jpg", ".jpeg")
 POST_MODES = ("auto", "dark", "light", "holes", "none")
+EVEN_EDGE = 0.02  # lighting is corrected when the edge's 5-95% range exceeds this of the range
 PICTURE_KEY = "condor:picture"  # PNG text of condor's own pictures: {"box_l0", "axes_px"}
 
 SMOOTH_PER_PX = 1 / 400  # Gaussian smoothing before telling the levels apart: this much of
@@ -290,9 +292,12 @@ def read_picture(path, scene_box: float, l0_um: float | None = None,
         raise DrawingError(f"{path}: no closed outline: the picture is all one shade (a "
                            "picture of a mould needs the mould in another shade than its "
                            "background)")
-    # the background: the edge's level; uneven lighting divided out (twice, from a first guess)
-    corrected, correct = smooth, None
-    for _ in range(2):
+    # the background: the edge's level; uneven lighting divided out (twice, from a first
+    # guess) where the edge shows it: the lighting model has two levels, so on an evenly lit
+    # picture of three (condor's own: background, mould, posts) it would bend the background
+    corrected, correct = smooth, (lambda image: image)
+    spread = np.subtract(*np.percentile(smooth[edge], [95, 5]))
+    for _ in range(2 if spread > EVEN_EDGE * np.ptp(smooth) else 0):
         threshold = filters.threshold_otsu(corrected) if np.ptp(corrected) > 0 else 0.0
         correct = _lighting(smooth, corrected > threshold)
         corrected = correct(smooth)
