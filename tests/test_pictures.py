@@ -196,3 +196,14 @@ def test_what_was_read_is_said_in_one_line(tmp_path):
             if word.replace(".", "").isdigit()][::2]  # "0.8298 l0 = 0.01328 mm, 1.483 l0 ..."
     np.testing.assert_allclose(read, sorted(mould.tethers[:, 2]), rtol=0.01)
     assert "a picture of 300 x 300 px" in line and "\n" not in line
+
+
+def test_condor_s_own_picture_of_a_ring_round_a_large_post(tmp_path):
+    """A light mould round one large dark post (condor's own picture: three shades, evenly
+    lit): the outline and the post come back, not the post as the mould. Fitting the lighting
+    to such a picture bent its background round the mould, and 5 of the default run's 100 test
+    moulds (rings, and moulds of 4-12 posts) read as one of their posts."""
+    for k in range(4):
+        mould = lab_mould(2026, k, "ring", DEFAULT)
+        path = plots.mould_picture(mould, tmp_path / f"ring{k}.png")
+        same_geometry(mould, load_placement(path, DEFAULT).mould, area=0.002, radius=0.01)
