@@ -219,6 +219,22 @@ def test_score_matches_the_noise_corrected_error_computed_by_hand(replicated_sto
         condor.score(np.zeros((3, 8, PIXELS, PIXELS)), path)
 
 
+def test_replicated_moulds_gives_each_test_mould_s_ok_replicas(replicated_store):
+    """Moulds 1 and 2 (4 and 5 replicas): their fields as written, N_c, family and geometry;
+    the train mould (1 replica) is not a test mould, and min_ok above a mould's count leaves
+    it out."""
+    path, fields, n_cells = replicated_store
+    got = list(dataset.replicated_moulds(path))
+    assert [g[0] for g in got] == [1, 2]
+    for mould, family, (polygon, tethers), raw, n, statuses in got:
+        np.testing.assert_array_equal(raw, fields[mould].astype(np.float64))
+        assert n == n_cells[mould] and statuses == ["ok"] * len(fields[mould])
+        assert polygon.equals(shapely.box(0.5, 0.5, 3.5, 3.5)) and tethers.shape == (2, 3)
+        assert isinstance(family, str)
+    assert [g[0] for g in dataset.replicated_moulds(path, min_ok=5)] == [2]
+    assert [g[0] for g in dataset.replicated_moulds(path, split="train", min_ok=1)] == [0]
+
+
 def test_store_has_cf_attributes_and_x_y_coordinates(replicated_store):
     ds = condor.open_dataset(replicated_store[0])
     np.testing.assert_allclose(ds["x"].values, (np.arange(PIXELS) + 0.5) * 0.5)

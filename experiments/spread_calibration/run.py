@@ -49,7 +49,7 @@ import pandas as pd  # noqa: E402
 from condor.config import Config  # noqa: E402
 from condor.moulds.lab import lab_mould  # noqa: E402
 from condor.moulds.mould import Mould  # noqa: E402
-from condor.data.dataset import mould_geometry, open_dataset  # noqa: E402
+from condor.data.dataset import open_dataset, replicated_moulds  # noqa: E402
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.surrogate.answer import SPREAD_STATISTICS  # noqa: E402
@@ -96,22 +96,16 @@ def fit_moulds(count: int, config: Config, scene) -> list:
 
 def test_moulds(store):
     """(mould id, mould, raw fields (R, 8, H, W), N_c, statuses) of each test mould of the
-    store with at least 2 ok replicas."""
+    store with at least 2 ok replicas (condor.data.dataset.replicated_moulds)."""
     ds = open_dataset(store)
-    split = ds["split"].values.astype(str)
-    status = ds["status"].values.astype(str)
-    mould = ds["mould"].values
     box = float(ds.attrs["scene"]["box"])
-    for m in sorted(set(mould[split == "test"].tolist())):
-        samples = np.flatnonzero(mould == m)
-        ok = samples[status[samples] == "ok"]
-        if len(ok) < 2:
-            print(f"test mould {m}: {len(ok)} ok replicas, left out")
-            continue
-        polygon, tethers = mould_geometry(ds, int(m))
-        fields = ds["fields"].isel(sample=ok).values.astype(np.float64)
-        yield (int(m), Mould(box=box, polygon=polygon, tethers=tethers), fields,
-               float(ds["n_cells"].values[ok[0]]), list(status[samples]))
+    kept = set()
+    for m, _, (polygon, tethers), fields, n_cells, statuses in replicated_moulds(ds):
+        kept.add(m)
+        yield m, Mould(box=box, polygon=polygon, tethers=tethers), fields, n_cells, statuses
+    left = sorted(set(ds["mould"].values[ds["split"].values.astype(str) == "test"].tolist()) - kept)
+    if left:
+        print(f"test moulds {left}: fewer than 2 ok replicas, left out")
 
 
 def score(moulds: pd.DataFrame, factors: dict) -> pd.DataFrame:

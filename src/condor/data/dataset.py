@@ -196,6 +196,27 @@ def mould_geometry(ds, index: int):
     return polygon, tethers
 
 
+def replicated_moulds(ds, split: str = "test", min_ok: int = 2):
+    """Each mould of `split` with at least `min_ok` ok replicas, in mould order: (mould id, its
+    family, its geometry as `mould_geometry` gives it, the ok replicas' raw fields (R, 8, H, W)
+    float64, N_c, every replica's status). `ds`: an open dataset or the store's path. A mould
+    with fewer ok replicas is left out; the caller sees it by its id missing."""
+    if not isinstance(ds, xr.Dataset):
+        ds = open_dataset(ds)
+    split_of = ds["split"].values.astype(str)
+    status = ds["status"].values.astype(str)
+    mould = ds["mould"].values
+    family = ds["family"].values.astype(str) if "family" in ds else np.full(len(mould), "paper")
+    for m in sorted(set(mould[split_of == split].tolist())):
+        samples = np.flatnonzero(mould == m)
+        ok = samples[status[samples] == "ok"]
+        if len(ok) < min_ok:
+            continue
+        yield (int(m), str(family[samples[0]]), mould_geometry(ds, int(m)),
+               ds["fields"].isel(sample=ok).values.astype(np.float64),
+               float(ds["n_cells"].values[ok[0]]), list(status[samples]))
+
+
 # --- the dataset card -----------------------------------------------------------------------
 
 def expected_statistics(ds) -> pd.DataFrame | None:
