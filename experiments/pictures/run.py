@@ -11,6 +11,14 @@ times with the product's solver (condor.model.simulate.DEFAULT_SOLVER, its budge
 replica seeds of condor.data.seeds: the truth is the replicas' mean of each statistic
 (condor.surrogate.answer.statistics of each replica's normalised fields).
 
+With --store (a run's dataset.zarr, whose checkpoint --checkpoint is): the run's own test
+moulds instead (condor.data.dataset.replicated_moulds; paper and lab, `family` says which),
+the truth the mean over their replicas in the store; nothing is simulated, so the
+`*_simulated` paths are left out:
+
+    python experiments/pictures/run.py --checkpoint results/models/unet.pt \
+        --store results/dataset.zarr --out experiments/pictures
+
 Paths, each predicted as `condor predict` predicts (eval mode, no spread):
 
   geometry      the mould itself: exact N_c and lattice channels (a JSON, SVG or DXF)
@@ -48,12 +56,13 @@ import pandas as pd
 from PIL import Image
 
 from condor import plots
+from condor.data.dataset import open_dataset, replicated_moulds
 from condor.data.fields import cell_fields, normalise
 from condor.data.seeds import replica_seed
 from condor.measures import estimators as est
 from condor.model.scenes import get_scene
 from condor.model.simulate import DEFAULT_SOLVER
-from condor.moulds.mould import input_channels
+from condor.moulds.mould import Mould, input_channels
 from condor.moulds.read import load_placement
 from condor.moulds.sources import make_mould
 from condor.stages.build import simulate_mould
@@ -93,6 +102,26 @@ def simulated(mould, scene, replicas: int, mould_id: int | None = None) -> tuple
     return float(np.mean(values)), float(np.std(values, ddof=1)), len(values)
 
 
+def store_moulds(store, scene):
+    """(mould, mean tension of its replicas, their sd, replicas ok) of each test mould of the
+    run's store (at least 2 ok replicas), its family kept on the mould."""
+    ds = open_dataset(store)
+    for m, family, (polygon, tethers), fields, n_cells, _ in replicated_moulds(ds):
+        values = [statistics(normalise(f, n_cells), n_cells, scene.pixel_size)["mean_tension"]
+                  for f in fields]
+        mould = Mould(box=scene.box, polygon=polygon, tethers=tethers, mould_id=m,
+                      family=family)
+        yield mould, float(np.mean(values)), float(np.std(values, ddof=1)), len(values)
+
+
+def generated_moulds(args, scene):
+    """(mould, mean tension of its replicas, their sd, replicas ok) of --moulds new generated
+    moulds, each simulated --replicas times."""
+    for k in range(args.moulds):
+        mould = make_mould(scene, SEED, args.first + k)
+        yield (mould, *simulated(mould, scene, args.replicas))
+
+
 def predicted(predictor, mould, scene, pixel_size) -> float:
     inputs = input_channels(mould, predictor.native)
     extra = predictor.mould_arguments([mould])
@@ -126,6 +155,8 @@ def main(argv=None) -> None:
     parser.add_argument("--moulds", type=int, default=40)
     parser.add_argument("--first", type=int, default=10_000)
     parser.add_argument("--replicas", type=int, default=4)
+    parser.add_argument("--store", default=None,
+                        help="a run's dataset.zarr: its test moulds and replicas instead")
     parser.add_argument("--out", default=str(Path(__file__).parent))
     args = parser.parse_args(argv)
     scene = get_scene(args.scene)
@@ -133,14 +164,16 @@ def main(argv=None) -> None:
     pixel_size = predictor.pixel_size
     rows = []
     start = time.time()
+    if args.store:
+        scene = get_scene(open_dataset(args.store).attrs["scene"]["name"])
+    source = store_moulds(args.store, scene) if args.store else generated_moulds(args, scene)
     with tempfile.TemporaryDirectory() as folder:
-        for k in range(args.moulds):
-            mould = make_mould(scene, SEED, args.first + k)
-            truth, spread, n_ok = simulated(mould, scene, args.replicas)
+        for k, (mould, truth, spread, n_ok) in enumerate(source):
             picture, photo = Path(folder) / f"m{k}.png", Path(folder) / f"m{k}.jpg"
             plots.mould_picture(mould, picture)
             photo_like(mould, photo, seed=k)
-            row = {"mould": mould.mould_id, "n_tethers": mould.n_tethers, "replicas_ok": n_ok,
+            row = {"mould": mould.mould_id, "family": mould.family or "paper",
+                   "n_tethers": mould.n_tethers, "replicas_ok": n_ok,
                    "simulated": truth, "simulated_sd": spread,
                    "geometry": predicted(predictor, mould, scene, pixel_size),
                    "masks": predicted_from_masks(predictor, mould, pixel_size)}
@@ -152,22 +185,45 @@ def main(argv=None) -> None:
                     row[f"{name}_error"] = str(error)
                     continue
                 row[name] = predicted(predictor, read, scene, pixel_size)
-                row[f"{name}_simulated"] = simulated(read, scene, args.replicas,
-                                                     mould.mould_id)[0]
+                if not args.store:
+                    row[f"{name}_simulated"] = simulated(read, scene, args.replicas,
+                                                         mould.mould_id)[0]
                 row.update({f"{name}_{key}": value
                             for key, value in geometry_error(mould, read).items()})
             rows.append(row)
-            print(f"mould {k + 1}/{args.moulds} ({time.time() - start:.0f} s): simulated "
+            print(f"mould {k + 1} ({time.time() - start:.0f} s): simulated "
                   f"{truth:.4g}, geometry {row['geometry']:.4g}, picture {row['picture']:.4g}, "
                   f"photo {row['photo']:.4g}, masks {row['masks']:.4g}", file=sys.stderr)
     moulds = pd.DataFrame(rows)
     summary = []
+    groups = [("all", moulds)]
+    if args.store:
+        groups += [(f, moulds[(moulds["family"] == "paper") == (f == "paper")])
+                   for f in ("paper", "lab")]
+    for group, part in groups:
+        summary += path_rows(part, group)
+    summary = pd.DataFrame(summary)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    tag = f"{scene.name}_store" if args.store else scene.name
+    summary.to_csv(out / f"pictures_{tag}.csv", index=False)
+    moulds.to_csv(out / f"pictures_moulds_{tag}.csv", index=False)
+    with pd.option_context("display.width", 200, "display.max_columns", 30):
+        print(summary.to_string(index=False))
+
+
+def path_rows(moulds: pd.DataFrame, group: str) -> list[dict]:
+    """One row a path (of PATHS that `moulds` holds) for the moulds of `group`."""
+    summary = []
     for name in PATHS:
+        if name not in moulds:
+            continue
         ok = moulds[name].notna().to_numpy()
         ratio = (moulds[name] / moulds["simulated"] - 1).to_numpy()[ok]
         bias, lo, hi = est.bootstrap_interval(ratio, np.median)
         r = float(np.corrcoef(moulds[name][ok], moulds["simulated"][ok])[0, 1])
-        row = {"path": name, "moulds": int(ok.sum()), "unread": int((~ok).sum()),
+        row = {"moulds_of": group, "path": name, "moulds": int(ok.sum()),
+               "unread": int((~ok).sum()),
                "bias": bias, "bias_lo": lo, "bias_hi": hi, "r": r}
         if name in ("picture", "photo", "masks", "picture_simulated", "photo_simulated"):
             against = "simulated" if name.endswith("_simulated") else "geometry"
@@ -181,13 +237,7 @@ def main(argv=None) -> None:
             row["posts_missed"] = int((moulds[f"{name}_posts_true"]
                                        != moulds[f"{name}_posts_read"]).sum())
         summary.append(row)
-    summary = pd.DataFrame(summary)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    summary.to_csv(out / f"pictures_{scene.name}.csv", index=False)
-    moulds.to_csv(out / f"pictures_moulds_{scene.name}.csv", index=False)
-    with pd.option_context("display.width", 200, "display.max_columns", 30):
-        print(summary.to_string(index=False))
+    return summary
 
 
 if __name__ == "__main__":
