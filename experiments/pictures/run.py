@@ -159,13 +159,12 @@ def main(argv=None) -> None:
                         help="a run's dataset.zarr: its test moulds and replicas instead")
     parser.add_argument("--out", default=str(Path(__file__).parent))
     args = parser.parse_args(argv)
-    scene = get_scene(args.scene)
+    scene = get_scene(open_dataset(args.store).attrs["scene"]["name"] if args.store
+                      else args.scene)
     predictor = Predictor(args.checkpoint, device="cpu")
     pixel_size = predictor.pixel_size
     rows = []
     start = time.time()
-    if args.store:
-        scene = get_scene(open_dataset(args.store).attrs["scene"]["name"])
     source = store_moulds(args.store, scene) if args.store else generated_moulds(args, scene)
     with tempfile.TemporaryDirectory() as folder:
         for k, (mould, truth, spread, n_ok) in enumerate(source):
@@ -198,8 +197,8 @@ def main(argv=None) -> None:
     summary = []
     groups = [("all", moulds)]
     if args.store:
-        groups += [(f, moulds[(moulds["family"] == "paper") == (f == "paper")])
-                   for f in ("paper", "lab")]
+        paper = moulds["family"] == "paper"
+        groups += [("paper", moulds[paper]), ("lab", moulds[~paper])]
     for group, part in groups:
         summary += path_rows(part, group)
     summary = pd.DataFrame(summary)

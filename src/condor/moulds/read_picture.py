@@ -296,11 +296,12 @@ def read_picture(path, scene_box: float, l0_um: float | None = None,
     # guess) where the edge shows it: the lighting model has two levels, so on an evenly lit
     # picture of three (condor's own: background, mould, posts) it would bend the background
     corrected, correct = smooth, (lambda image: image)
-    spread = np.subtract(*np.percentile(smooth[edge], [95, 5]))
-    for _ in range(2 if spread > EVEN_EDGE * np.ptp(smooth) else 0):
-        threshold = filters.threshold_otsu(corrected) if np.ptp(corrected) > 0 else 0.0
-        correct = _lighting(smooth, corrected > threshold)
-        corrected = correct(smooth)
+    uneven = np.subtract(*np.percentile(smooth[edge], [95, 5])) > EVEN_EDGE * np.ptp(smooth)
+    if uneven:
+        for _ in range(2):
+            threshold = filters.threshold_otsu(corrected) if np.ptp(corrected) > 0 else 0.0
+            correct = _lighting(smooth, corrected > threshold)
+            corrected = correct(smooth)
     # edges are traced on a finer smoothing, so that they sit where they are drawn
     fine = correct(filters.gaussian(grey, sigma=CONTOUR_SMOOTH_PX, preserve_range=True))
     b = float(np.median(corrected[edge]))
