@@ -82,7 +82,7 @@ def test_reference_runs_resume_pack_and_load(tmp_path):
 def test_packing_adds_to_the_product_and_a_lost_cache_loses_no_run(tmp_path):
     import json
     import shutil
-    from condor.studies.paper_reference import reference_file, reference_rung
+    from condor.studies.paper_reference import reference_file, reference_rung, shipped_runs
     scene = get_scene("tiny")
     cache, folder = tmp_path / "cache", tmp_path / "product"
     first = run_reference(cache, scene, 2026, 5, 20, 0)
@@ -93,6 +93,9 @@ def test_packing_adds_to_the_product_and_a_lost_cache_loses_no_run(tmp_path):
     runs = load_reference("tiny", 2026, 5, folder=folder)
     assert [r.run for r in runs] == [0, 1]
     assert [r.energy_per_cell for r in runs] == [first.energy_per_cell, second.energy_per_cell]
+    # the worker skips what the product holds, though this cache never ran run 0
+    assert shipped_runs("tiny", 2026, 5, folder) == {"anneal2e1_k0", "anneal2e1_k1"}
+    assert shipped_runs("tiny", 2026, 6, folder) == set()
     with np.load(reference_file("tiny", 2026, 5, folder)) as data:
         meta = json.loads(str(data["meta"]))
     assert [r["commit"] for r in meta["runs"]] == ["a", "b"]  # each run keeps its own

@@ -7,7 +7,7 @@ of workers at once (each claims a run with a lock file), one thread each, niced.
 Each finished run is added to the shipped product (src/condor/paper_reference/, tables.pack) at
 once, and kept as a SimResult file in the cache; a running one keeps its anneal checkpoint
 beside it, every 5 minutes (`condor.studies.paper_reference`). Kill a worker at any time;
-start it again to resume. The cache defaults to experiments/paper_reference/cache/, whose
+start it again to resume; a run the product already holds is not run again. The cache defaults to experiments/paper_reference/cache/, whose
 checkpoints are committed when a session ends, so that a ladder spans sessions and machines. The order is rung by rung; within a rung, run k of every mould before run k + 1
 (--order run) or every run of a mould before the next mould (--order mould).
 """
@@ -26,7 +26,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.studies.paper_reference import (  # noqa: E402
-    pack_mould, run_path, run_provenance, run_reference,
+    budget_tag, pack_mould, run_path, run_provenance, run_reference, shipped_runs,
 )
 
 CACHE = Path(__file__).resolve().parent / "cache"
@@ -79,8 +79,9 @@ def main(argv=None) -> int:
         for k, mould in pairs:
             path = run_path(a.cache, scene, a.seed, mould, budget, k)
             path.parent.mkdir(parents=True, exist_ok=True)
-            if path.exists() or not claim(path):
-                continue
+            shipped = shipped_runs(scene.name, a.seed, mould, a.product)
+            if path.exists() or f"anneal{budget_tag(budget)}_k{k}" in shipped or not claim(path):
+                continue  # done here, shipped from another machine, or a live worker's
             try:
                 log(f"start {path.name}")
                 r = run_reference(a.cache, scene, a.seed, mould, budget, k, log=log)

@@ -106,6 +106,16 @@ def run_provenance(made_by: str) -> dict:
     return {"kernel": KERNEL, "commit": commit, "made_by": made_by}
 
 
+def shipped_runs(scene_name: str, dataset_seed: int, mould_id: int, folder=None) -> set[str]:
+    """The keys (e.g. "anneal1e6_k0") of the runs the reference file holds with status ok:
+    runs that need no rerun when the cache that made them is gone."""
+    path = reference_file(scene_name, dataset_seed, mould_id, folder)
+    if not path.exists():
+        return set()
+    with np.load(path, allow_pickle=False) as data:
+        return {r["key"] for r in json.loads(str(data["meta"]))["runs"] if r["status"] == "ok"}
+
+
 def pack_mould(cache, scene: Scene, dataset_seed: int, mould_id: int, budgets, runs: int,
                provenance: dict, folder=None) -> Path | None:
     """Add the finished runs 0..runs-1 of `mould_id` at `budgets` in the run cache (each with
