@@ -5,22 +5,26 @@ import pytest
 import shapely
 
 from condor.model.scenes import get_scene
+from condor.moulds.composite import COMPOSITE, COMPOSITE_FAMILY
 from condor.moulds.lab import (
-    AREA_RANGE, CLEARANCE, FAMILIES, FAMILY_NAMES, MAX_EXTENT, lab_geometry, lab_mould,
+    AREA_RANGE, CLEARANCE, FAMILIES, FAMILY_NAMES, MAX_EXTENT, family_geometry, lab_geometry,
+    lab_mould,
 )
+
+EVERY = {**FAMILIES, COMPOSITE: COMPOSITE_FAMILY}  # the lab families and the training source
 from condor.moulds.mould import PAPER, Mould, check_mould, load_json, save_json
 
 
-@pytest.mark.parametrize("family", FAMILY_NAMES)
+@pytest.mark.parametrize("family", tuple(EVERY))
 def test_every_family_draws_valid_moulds_within_its_ranges(family):
     """40 moulds a family at the default box: the mould contract (check_mould: inside the
     box, posts inside and apart, room for cells), the area and extent rules, the posts'
     clearance and radii, each measured on the geometry itself."""
     box = 31.25
-    low, high = FAMILIES[family].ranges["post radius"]
-    counts = set()
+    low, high = EVERY[family].ranges["post radius"]
+    counts, holes = set(), 0
     for i in range(40):
-        polygon, tethers = lab_geometry(7, i, family, box)
+        polygon, tethers = family_geometry(7, i, EVERY[family], box)
         check_mould(Mould(box=box, polygon=polygon, tethers=tethers))
         fraction = polygon.area / box**2
         assert AREA_RANGE[0] - 1e-9 <= fraction <= AREA_RANGE[1] + 1e-9
@@ -33,6 +37,9 @@ def test_every_family_draws_valid_moulds_within_its_ranges(family):
         gaps = shapely.distance(walls, shapely.points(tethers[:, :2])) - tethers[:, 2]
         assert gaps.min() >= CLEARANCE * box * (1 - 1e-9)
         counts.add(len(tethers))
+        holes += len(polygon.interiors) > 0
+    if family == COMPOSITE:  # what the paper's generator never makes: 1-2 posts, holes
+        assert {1, 2} <= counts and len(counts) >= 6 and 4 <= holes <= 24
     if family == "ring":
         assert counts == {1}
     if family in ("strip", "dogbone"):

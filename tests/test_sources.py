@@ -79,3 +79,36 @@ def test_lab_test_moulds_take_the_test_replicas_and_define_the_data():
     other = Config.default(moulds={"lab_fraction": 0.25})
     assert other.data_config() != config.data_config()
     assert other.data_config()["lab_fraction"] == 0.25
+
+
+def test_composite_moulds_take_their_share_of_training_lab_moulds_and_never_a_test_mould():
+    from condor.moulds.composite import COMPOSITE
+    splits = _splits(300, 30, 100)
+    plain = assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3)
+    mixed = assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, composite_fraction=0.4)
+    for split, n_lab in (("train", 150), ("val", 15)):
+        got = Counter(src for s, src in zip(splits, mixed) if s == split)
+        assert got[COMPOSITE] == round(0.4 * n_lab)
+        assert sum(v for k, v in got.items() if k != PAPER) == n_lab  # the lab share kept
+        others = [v for k, v in got.items() if k not in (PAPER, COMPOSITE)]
+        assert max(others) - min(others) <= 1
+    test = [i for i, s in enumerate(splits) if s == "test"]
+    assert [mixed[i] for i in test] == [plain[i] for i in test]  # the test sets unchanged
+    assert plain == assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, composite_fraction=0)
+    only = assign_sources(splits, 1.0, 0, (), seed=3, composite_fraction=1.0)
+    assert {src for s, src in zip(splits, only) if s != "test"} == {COMPOSITE}
+    with pytest.raises(ValueError, match="composite_fraction must be in"):
+        assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, composite_fraction=1.5)
+
+
+def test_the_composite_share_defines_the_data_only_when_used():
+    from condor.moulds.composite import COMPOSITE
+    config = Config.default()
+    assert "composite_fraction" not in Config.default(
+        moulds={"composite_fraction": 0.0}).data_config()  # stores built before the key
+    other = Config.default(moulds={"composite_fraction": 0.5})
+    assert other.data_config() != config.data_config()
+    assert COMPOSITE in other.sources() and other.test_moulds() == config.test_moulds()
+    assert other.test_moulds("lab") == config.test_moulds("lab")
+    i = other.sources().index(COMPOSITE)
+    assert other.make_mould(i).family == COMPOSITE

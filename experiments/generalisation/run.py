@@ -40,6 +40,7 @@ os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
+import xarray as xr  # noqa: E402
 
 from condor.config import Config  # noqa: E402
 from condor.data.store import open_store  # noqa: E402
@@ -60,6 +61,8 @@ LAB_SHARES = (0.0, 0.25, 0.5, 0.75)
 KINDS = (("strip", "dogbone"), ("ring", "annulus"), ("polygon", "cross"), ("spline", "oval"),
          ("frame", "side_anchored"))
 FRESH = "fresh seed"  # the family label of the fresh generator seed's moulds
+EXTRA_OFFSET = 1_000_000  # added to the extra store's mould ids and samples in a training set
+TRAINING_DIMS = {"sample", "field", "y", "x", "channel", "cell"}  # what training reads
 
 
 def log(line: str) -> None:
@@ -112,6 +115,18 @@ def relabelled(ds, train_ids, val_ids):
     return ds.assign(split=("sample", split))
 
 
+def with_extra(ds, extra, extra_ids):
+    """ds's training variables (those of TRAINING_DIMS) with the `extra_ids` moulds of the
+    extra store appended, their mould ids and samples offset by EXTRA_OFFSET, labelled
+    "unused" (`relabelled` makes them training moulds)."""
+    names = [n for n, v in ds.data_vars.items() if set(v.dims) <= TRAINING_DIMS and n in extra]
+    mine = extra[names].isel(sample=[int(i) for i in extra_ids])
+    mine = mine.assign_coords(sample=mine["sample"].values + EXTRA_OFFSET)
+    mine["mould"] = mine["mould"] + EXTRA_OFFSET
+    return xr.concat([ds[names], mine], dim="sample", data_vars="all", coords="minimal",
+                     compat="override", join="override", combine_attrs="override")
+
+
 def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]:
     """Every model of the study: name -> {lab_share, held_out, n_train}; the mixture models'
     and, with n_train other than N_TRAIN, the size models' (the named share at n_train)."""
@@ -127,9 +142,23 @@ def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]
     return out
 
 
-def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int) -> Path:
+def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int,
+                extra=None, extra_share: float = 0.0) -> Path:
+    """Train (or find in `cache`) the model `spec` names; with `extra` (a store) and
+    `extra_share`, that share of its training moulds comes from the extra store's training
+    moulds (in id order) and the pool's lab share applies to the rest."""
     held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
-    train_ids = choose(ds, "train", spec.get("n_train", N_TRAIN), spec["lab_share"], held)
+    n = spec.get("n_train", N_TRAIN)
+    n_extra = int(round(extra_share * n)) if extra is not None else 0
+    n_paper = n - int(round(spec["lab_share"] * n))
+    train_ids = choose(ds, "train", n - n_extra, 1 - n_paper / (n - n_extra), held)
+    if n_extra:
+        extra_ids = first_replicas(extra, "train")[:n_extra]
+        if len(extra_ids) < n_extra:
+            raise ValueError(f"the extra store holds {len(extra_ids)} training moulds, not "
+                             f"{n_extra}")
+        ds = with_extra(ds, extra, extra_ids)
+        train_ids = train_ids + [int(i) + EXTRA_OFFSET for i in extra_ids]
     val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
     val_ids = [int(i) for i in val if families_of(ds)[i] not in held]  # pool's but the held
     key = hashlib.sha256(json.dumps([train_ids, val_ids, settings], sort_keys=True)
@@ -181,6 +210,10 @@ def main(argv=None) -> int:
     ap.add_argument("--n-train", type=int, default=N_TRAIN, help="training moulds a model")
     ap.add_argument("--epochs", type=int, default=None, help="default: the preset's")
     ap.add_argument("--only", nargs="+", default=None, help="train and score only these models")
+    ap.add_argument("--extra", type=Path, default=None,
+                    help="a store of more training moulds (composite.yaml's dataset.zarr)")
+    ap.add_argument("--extra-share", type=float, default=0.25,
+                    help="the share of a model's training moulds from --extra")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
     config = Config.load(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
@@ -188,6 +221,8 @@ def main(argv=None) -> int:
     if a.epochs is not None:
         settings = {**settings, "epochs": a.epochs}
     ds, fresh = open_store(a.pool), open_store(a.fresh)
+    extra = open_store(a.extra) if a.extra is not None else None
+    suffix = f"_extra{a.extra_share:g}" if extra is not None else ""
     test = first_replicas(ds, "test")
     fam = families_of(ds)
     paper_ids = [int(i) for i in test if fam[i] == PAPER]
@@ -202,10 +237,12 @@ def main(argv=None) -> int:
               if ("mixture" in a.steps and n.startswith("mixture"))
               or ("lofo" in a.steps and n.startswith("without"))}
     if a.only:
-        wanted = {n: s for n, s in wanted.items() if n in a.only}
+        wanted = {n: s for n, s in wanted.items() if n in a.only or n + suffix in a.only}
     rows, moulds = [], []
+    wanted = {name + suffix: spec for name, spec in wanted.items()}
     for name, spec in wanted.items():
-        checkpoint = train_model(ds, name, spec, settings, a.cache, a.threads)
+        checkpoint = train_model(ds, name, spec, settings, a.cache, a.threads, extra,
+                                 a.extra_share)
         for group, ensemble in ensembles.items():
             store = fresh if group == FRESH else ds
             raw = predictions(checkpoint, store, ensemble.moulds, a.cache, group.replace(" ", "_"))

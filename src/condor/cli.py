@@ -13,6 +13,7 @@ from condor.data.store import SPLITS
 from condor.files import WriteError, fault_message, write_fault
 from condor.model.scenes import PRESETS, get_scene
 from condor.model.simulate import DEFAULT_SOLVER, SOLVERS
+from condor.moulds.composite import COMPOSITE
 from condor.moulds.lab import FAMILY_NAMES
 from condor.moulds.mould import PAPER
 from condor.moulds.paper import MouldParams
@@ -368,9 +369,9 @@ def _parser_mould(sub) -> None:
     p = sub.add_parser("mould", help="generate one mould: geometry JSON and a picture")
     p.add_argument("--seed", type=_non_negative_int, required=True, help="global seed")
     p.add_argument("--id", type=_non_negative_int, default=0, help="mould id (default 0)")
-    p.add_argument("--family", default=PAPER, choices=(PAPER,) + FAMILY_NAMES,
-                   help="the paper's generator (default) or a lab family "
-                        "(docs/moulds.md, \"Lab families\")")
+    p.add_argument("--family", default=PAPER, choices=(PAPER,) + FAMILY_NAMES + (COMPOSITE,),
+                   help="the paper's generator (default), a lab family or composite "
+                        "(docs/moulds.md, \"Lab families\", \"Composite moulds\")")
     p.add_argument("--out", help="write the geometry as JSON here")
     p.add_argument("--png", help="write a picture here")
     p.add_argument("--no-tether-fraction", type=float, default=None,

@@ -190,7 +190,8 @@ class Config:
         from condor.studies.paper_reference import reference_moulds
         return assign_sources(self.splits(), self.moulds["lab_fraction"],
                               self.split["lab_test"], self.lab_families(), self.seed,
-                              pinned=reference_moulds(self.scene.name, self.seed))
+                              pinned=reference_moulds(self.scene.name, self.seed),
+                              composite_fraction=self.moulds["composite_fraction"])
 
     def make_mould(self, mould_id: int):
         """Mould `mould_id` of this dataset, from its source."""
@@ -238,7 +239,11 @@ class Config:
                 "no_tether_fraction": self.mould_params().no_tether_fraction,
                 "split": _plain(self.split), "lab_fraction": self.moulds["lab_fraction"],
                 "lab_families": list(self.lab_families()),
-                "lab_area": list(self.moulds["lab_area"]), "solver": self.solver()[0],
+                "lab_area": list(self.moulds["lab_area"]),
+                # recorded when used: a store built before the key had none, and holds none
+                **({"composite_fraction": self.moulds["composite_fraction"]}
+                   if self.moulds["composite_fraction"] else {}),
+                "solver": self.solver()[0],
                 "budget": self.solver()[1], "ftol": FTOL,
                 "replicas": _plain(self.simulation["replicas"])}
 

@@ -179,7 +179,7 @@ def _spline(rng):
         r += rng.uniform(0, 0.35 / k) * np.cos(k * phi + rng.uniform(0, 2 * np.pi))
     outline = Polygon(np.stack([r * np.cos(phi), r * np.sin(phi)], 1))
     n = int(rng.integers(1, 9))
-    return outline, _random_posts(rng, outline, n), {"random_posts": n}
+    return outline, random_posts(rng, outline, n), {"random_posts": n}
 
 
 def _frame(rng):
@@ -240,9 +240,10 @@ def _oval(rng):
     return outline, np.array(posts), {"width": 2.0}
 
 
-def _random_posts(rng, outline: Polygon, n: int) -> np.ndarray:
+def random_posts(rng, outline: Polygon, n: int, spread: bool = True) -> np.ndarray:
     """n points inside `outline`, at least a fifth of its inradius-ish size from the wall and
-    spread out (the farthest of 30 candidates from the chosen ones, each time)."""
+    spread out (the farthest of 30 candidates from the chosen ones, each time; with `spread`
+    False, the first candidate inside)."""
     xmin, ymin, xmax, ymax = outline.bounds
     core = outline.buffer(-0.2 * min(xmax - xmin, ymax - ymin) / 2)
     if core.is_empty:
@@ -254,7 +255,7 @@ def _random_posts(rng, outline: Polygon, n: int) -> np.ndarray:
         xy = xy[shapely.contains_xy(core, xy[:, 0], xy[:, 1])]
         if not len(xy):
             continue
-        if chosen:
+        if chosen and spread:
             d = np.min(np.linalg.norm(xy[:, None] - np.array(chosen)[None], axis=2), axis=1)
             chosen.append(xy[int(np.argmax(d))])
         else:
@@ -339,12 +340,19 @@ def lab_geometry(seed: int, mould_id: int, family: str, box: float,
                  max_extent: float = MAX_EXTENT,
                  area_range: tuple[float, float] = AREA_RANGE) -> tuple[Polygon, np.ndarray]:
     """The outline (l0) and posts (n, 3, l0) of lab mould `mould_id` of `family` in a box of
-    side `box`: a pure function of its arguments (rng = default_rng([seed, mould_id,
-    LAB_STREAM])). RuntimeError when no draw passes in MAX_ATTEMPTS."""
+    side `box`: a pure function of its arguments (`family_geometry`)."""
     if family not in FAMILIES:
         raise ValueError(f"unknown lab family {family!r}; choose one of {FAMILY_NAMES}")
+    return family_geometry(seed, mould_id, FAMILIES[family], box, max_extent, area_range)
+
+
+def family_geometry(seed: int, mould_id: int, fam: LabFamily, box: float,
+                    max_extent: float = MAX_EXTENT,
+                    area_range: tuple[float, float] = AREA_RANGE) -> tuple[Polygon, np.ndarray]:
+    """The outline (l0) and posts (n, 3, l0) of mould `mould_id` of family `fam` (a LabFamily,
+    here or condor.moulds.composite's) in a box of side `box` (rng = default_rng([seed,
+    mould_id, LAB_STREAM])). RuntimeError when no draw passes in MAX_ATTEMPTS."""
     rng = np.random.default_rng([int(seed), int(mould_id), LAB_STREAM])
-    fam = FAMILIES[family]
     for _ in range(MAX_ATTEMPTS):
         found = _attempt(rng, fam, max_extent, area_range)
         if found is not None:
@@ -352,7 +360,7 @@ def lab_geometry(seed: int, mould_id: int, family: str, box: float,
             to_box = float(box)
             return (affinity.scale(outline, to_box, to_box, origin=(0, 0)),
                     tethers * np.array([to_box, to_box, to_box]))
-    raise RuntimeError(f"lab mould {mould_id} (seed {seed}, family {family}): no geometry "
+    raise RuntimeError(f"lab mould {mould_id} (seed {seed}, family {fam.name}): no geometry "
                        f"passed in {MAX_ATTEMPTS} draws")
 
 

@@ -77,7 +77,8 @@ class Mould:
     outline: str | None = None  # initial shape: "convex_hull" or "simple_polygon"; None
     # for a user mould
     family: str | None = None  # its source's family: PAPER (the generator), a lab family
-    # (condor.moulds.lab.FAMILY_NAMES) or USER; None: PAPER for a generated mould, else USER
+    # (condor.moulds.lab.FAMILY_NAMES), "composite" (condor.moulds.composite) or USER; None:
+    # PAPER for a generated mould, else USER
 
     def __post_init__(self):
         if self.family is None:

@@ -1,0 +1,101 @@
+"""Composite moulds: a training source that varies what lab moulds vary, not a shape labs cast.
+
+A composite mould is a union of 1-3 random parts (stadiums, ellipses, rounded rectangles,
+convex polygons), each joined at a point of the outline so far, concave corners rounded, with
+1-3 holes a third of the time and 1-8 posts inside, spread apart or placed at random; drawn,
+scaled to an area in the lab range, turned, centred and checked as a lab mould is
+(`condor.moulds.lab.family_geometry`, the same stream). The paper's generator never makes one
+or two posts or holes, and each lab family makes one kind of each: a surrogate that trains on
+composite moulds meets fewer moulds unlike anything it saw. Measured in
+experiments/generalisation/README.md ("Composite moulds"). A dataset draws
+`moulds.composite_fraction` of its training and validation lab moulds from here
+(`condor.moulds.sources`); the test sets never hold one.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import shapely
+from shapely import affinity
+from shapely.geometry import Point, Polygon
+
+from condor.model.scenes import Scene
+from condor.moulds.lab import (
+    AREA_RANGE, ARC_SEGMENTS, LabFamily, _fillet, _round_rect, _stadium, family_geometry,
+    random_posts,
+)
+from condor.moulds.mould import Mould, check_mould
+
+COMPOSITE = "composite"  # the source's and its moulds' family name
+
+
+def _primitive(rng) -> Polygon:
+    """One part of a composite outline, about a unit wide: a stadium, an ellipse, a rounded
+    rectangle or a random convex polygon, scaled 0.6-1.4x and turned at random."""
+    kind = int(rng.integers(4))
+    if kind == 0:
+        part = _stadium(rng.uniform(1.2, 5.0), 1.0)
+    elif kind == 1:
+        part = affinity.scale(Point(0, 0).buffer(0.5, quad_segs=ARC_SEGMENTS),
+                              rng.uniform(1.0, 3.0), 1.0)
+    elif kind == 2:
+        part = _round_rect(rng.uniform(1.0, 4.0), 1.0, rng.uniform(0.0, 0.3))
+    else:
+        angles = np.sort(rng.uniform(0, 2 * np.pi, int(rng.integers(3, 8))))
+        radii = 0.5 * rng.uniform(0.6, 1.0, len(angles))
+        part = Polygon(np.stack([radii * np.cos(angles), radii * np.sin(angles)], 1)).convex_hull
+        part = affinity.translate(part, -part.centroid.x, -part.centroid.y)
+    size = rng.uniform(0.6, 1.4)
+    return affinity.rotate(affinity.scale(part, size, size, origin=(0, 0)), rng.uniform(0, 180),
+                           origin=(0, 0))
+
+
+def _draw(rng):
+    """A union of 1-3 random parts (each joined at a point of the outline so far), concave
+    corners rounded, with 1-3 holes a third of the time and 1-8 posts inside, spread apart or
+    placed at random: not a shape labs cast, but one that varies what they vary (the number
+    and placement of posts, holes, elongation, joints) so that a surrogate trained on it meets
+    fewer moulds unlike anything it saw."""
+    parts = [_primitive(rng)]  # each part holds its centre: a joint joins the union
+    for _ in range(int(rng.integers(0, 3))):
+        joint = parts[int(rng.integers(len(parts)))].exterior.interpolate(rng.uniform(0, 1),
+                                                                          normalized=True)
+        parts.append(affinity.translate(_primitive(rng), joint.x, joint.y))
+    outline = _fillet(shapely.union_all(parts), 0.1)
+    if outline.geom_type != "Polygon":
+        return outline, np.zeros((0, 2)), {}  # refused by _attempt: drawn again
+    if rng.random() < 1 / 3:
+        for _ in range(int(rng.integers(1, 4))):
+            inner = outline.buffer(-0.3)
+            if inner.is_empty:
+                break
+            centre = random_posts(rng, inner, 1, spread=False)[0]
+            size = rng.uniform(0.15, 0.6)
+            hole = affinity.rotate(affinity.translate(
+                _round_rect(size * rng.uniform(1.0, 2.0), size, rng.uniform(0, 0.5) * size)
+                if rng.random() < 0.5 else
+                affinity.scale(Point(0, 0).buffer(size / 2, quad_segs=ARC_SEGMENTS),
+                               rng.uniform(1.0, 2.0), 1.0), *centre), rng.uniform(0, 180))
+            if outline.buffer(-0.08).contains(hole):
+                outline = outline.difference(hole)
+    n = int(rng.integers(1, 9))
+    return outline, random_posts(rng, outline, n, spread=rng.random() < 0.5), {"posts": n}
+
+
+COMPOSITE_FAMILY = LabFamily(
+    COMPOSITE, "a union of 1-3 random parts (stadiums, ellipses, rounded rectangles, convex "
+    "polygons), a third with 1-3 holes, 1-8 posts spread or at random", _draw,
+    {"parts": (1, 3), "part aspect": (1.0, 5.0), "part size": (0.6, 1.4), "holes": (0, 3),
+     "hole size / part width": (0.15, 0.6), "posts": (1, 8), "post radius": (0.015, 0.07)})
+
+
+def composite_mould(seed: int, mould_id: int, scene: Scene,
+                    area_range: tuple[float, float] = AREA_RANGE) -> Mould:
+    """Composite mould `mould_id` of dataset `seed` in `scene`'s box, checked against the mould
+    contract."""
+    polygon, tethers = family_geometry(seed, mould_id, COMPOSITE_FAMILY, scene.box,
+                                       scene.max_extent, area_range)
+    mould = Mould(mould_id=int(mould_id), seed=int(seed), box=float(scene.box), polygon=polygon,
+                  tethers=tethers, family=COMPOSITE)
+    check_mould(mould)
+    return mould
