@@ -108,6 +108,7 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path, helps
     sys.modules[name] = module  # as `import` does: dataclasses look their module up there
     sys.path.insert(0, str(script.parent))  # as `python <script>` does for its own folder
     before = set(sys.modules)
+    environ = dict(os.environ)  # a script sets its threads (NUMBA_NUM_THREADS) at import
     try:
         spec.loader.exec_module(module)
     except SystemExit as err:  # a script must not run (or exit) at import
@@ -115,6 +116,10 @@ def test_script_imports_without_path_tricks_and_answers_help(script: Path, helps
     finally:
         sys.modules.pop(name, None)
         sys.path.remove(str(script.parent))
+        # numba reads the environment at every compile and refuses a thread count other than
+        # the one it launched with: a later test of this worker would fail on it
+        os.environ.clear()
+        os.environ.update(environ)
         # its own folder's modules (a sibling `run`) go too, as with the process that
         # `python <script>` ends: another folder's script would otherwise import this one's
         for added in set(sys.modules) - before:
