@@ -57,3 +57,19 @@ def test_features_are_invariant_under_the_planar_symmetries():
     assert a.shape == (1, 8)
     np.testing.assert_allclose(a, b, rtol=1e-5, atol=1e-6)
     assert not np.allclose(a, novelty.features(model, "mask", 1 - x))
+
+
+def test_the_unseen_kinds_line_reads_only_the_held_out_rows():
+    import pandas as pd
+    from condor.surrogate.novelty import unseen_kinds_sentence
+    table = pd.DataFrame({
+        "family": ["strip", "dogbone", "ring", "strip", "paper", "annulus"],
+        "held_out": ["strip+dogbone", "strip+dogbone", "ring+annulus", "ring+annulus",
+                     "ring+annulus", "ring+annulus"],
+        "tension_bias": [0.10, -0.02, 0.04, 0.50, -0.90, -0.12]})
+    # held out: strip +10%, dogbone -2%, ring +4%, annulus -12% (a trained-on strip's +50% and
+    # the paper moulds' -90% are not unseen kinds): median of |bias| 7%, the largest -12%
+    line = unseen_kinds_sentence(table, "study at abc")
+    assert "median of 7% over 4 families, up to -12% (family annulus)" in line
+    assert "study at abc" in line and "--check 4" in line
+    assert unseen_kinds_sentence(table[table["family"] == "paper"], "x") is None

@@ -197,7 +197,9 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, 
     """How new the mould is to the checkpoint (condor.surrogate.novelty: its features' distance
     to the training moulds'), and what was measured on moulds that new: the verdict's two
     lines and its numbers (condor.findings' "novelty", experiments/generalisation)."""
-    from condor.surrogate.novelty import mould_novelty, network_inputs, novelty_verdict
+    from condor.surrogate.novelty import (
+        mould_novelty, network_inputs, novelty_verdict, unseen_kinds_sentence,
+    )
 
     x = network_inputs(predictor.inputs_kind, np.asarray(inputs)[None],
                        None if lattice is None else np.asarray(lattice).reshape(
@@ -210,8 +212,12 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, 
     if finding.values["score"] != "feature_distance":
         raise ValueError(f"condor.findings' novelty calibrates {finding.values['score']!r}; "
                          "predict computes the feature distance (condor.surrogate.novelty)")
-    return novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
-                           f"{finding.experiment} at {finding.commit}")
+    text, numbers = novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
+                                    f"{finding.experiment} at {finding.commit}")
+    measured = load_findings().get("generalisation")
+    unseen = None if measured is None else unseen_kinds_sentence(
+        measured.frame(), f"{measured.experiment} at {measured.commit}")
+    return (text if unseen is None else f"{text}\n  {unseen}"), numbers
 
 
 def mould_inputs(predictor, mould, placement, warn) -> tuple:

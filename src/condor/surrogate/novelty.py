@@ -236,3 +236,21 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
             f"[{row.ratio_lo:.2g}, {row.ratio_hi:.2g}] one simulation's scatter from their "
             f"expected fields, {row.share_above_ceiling:.0%} above it ({provenance})")
     return text, numbers
+
+
+def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str) -> str | None:
+    """One line on the whole-mould mean tension of kinds of mould the surrogate never trained
+    on, from the generalisation finding's held-out rows (a family scored by a model that did not
+    see it): the median |bias| over the families and the largest, with its family. The feature
+    distance does not tell these moulds well (novelty's AUROC), so `predict` says it whatever the
+    verdict. None without held-out rows."""
+    held = generalisation[[str(f) in str(h).split("+") for f, h in
+                           zip(generalisation["family"], generalisation["held_out"])]]
+    if held.empty:
+        return None
+    bias = held["tension_bias"].astype(float)
+    worst = held.loc[bias.abs().idxmax()]
+    return (f"on kinds of mould it never trained on, its mean tension was off by a median of "
+            f"{bias.abs().median():.0%} over {len(held)} families, up to "
+            f"{float(worst['tension_bias']):+.0%} (family {worst['family']}) ({provenance}): a new kind "
+            "of mould's whole-mould numbers deserve a check by simulation (--check 4)")
