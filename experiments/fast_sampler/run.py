@@ -10,6 +10,8 @@ replica seeds of the mould, then L-BFGS to the dataset's tolerance):
   window:B:Thi:Tlo         an exponential anneal over B moves a cell from Thi to Tlo
   relax:Thi:Tlo:S:W:R      condor.model.anneal.relaxed_anneal: S segments of W sweeps from Thi to
                            Tlo, each followed by R evaluations of L-BFGS on the positions
+  relax:Thi:Tlo:S:W:R:F    the same, the final L-BFGS to a largest residual force F (kappa0 l0)
+                           instead of the dataset's tolerance
 Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
 the paper-reference cache (experiments/paper_reference/run.py).
 """
@@ -46,6 +48,7 @@ def run_method(spec: str, scene, mould, seed: int) -> SimResult:
     ori = random_orientations(lattice.n_cells, np.random.default_rng([seed, 1]))
     pos = lattice.positions
     kind, *args = spec.split(":")
+    ftol = None  # the dataset's tolerance
     anneal_info, t0 = {}, time.process_time()
     if kind in ("anneal", "window"):
         budget = float(args[0])
@@ -56,12 +59,13 @@ def run_method(spec: str, scene, mould, seed: int) -> SimResult:
     elif kind == "relax":
         t_hi, t_lo, segments, sweeps, relax = (float(args[0]), float(args[1]), int(args[2]),
                                                int(args[3]), int(args[4]))
+        ftol = float(args[5]) if len(args) > 5 else None
         pos, ori, anneal_info = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2], t_hi,
                                                           t_lo, segments, sweeps, relax)
     elif kind != "quench":
         raise ValueError(f"unknown method {spec!r}")
     anneal_seconds = time.process_time() - t0
-    result = simulate_lattice(lattice, pos, ori, "lbfgs", seed=seed)
+    result = simulate_lattice(lattice, pos, ori, "lbfgs", seed=seed, ftol=ftol)
     result.seconds += anneal_seconds
     result.info["evaluations"] += anneal_info.get("anneal_evaluations", 0.0)
     result.info.update(anneal_info)
