@@ -2,18 +2,18 @@
 whether a mould is of a kind its model never trained on, and how far off its mean tension is.
 Reads novelty_moulds.csv (novelty.py's, the five leave-one-kind-out models x every test mould)
 and prints, per score, the AUROC of three targets and the Spearman correlation with the mean
-tension's |log ratio| (experiments/generalisation/README.md, "What the scores tell"); and
-chooses the descriptor distance's threshold for "a kind of mould it never trained on": the one
-that catches the most moulds of the held-out kinds at no more than MAX_FALSE_ALARMS of the
-trained-on moulds' (new_kind.json, which ship.py ships as the finding `new_kind`).
+tension's |log ratio| (experiments/generalisation/README.md, "What the scores tell"); and the
+descriptor distance's threshold for "a kind of mould it never trained on": the one that catches
+the most moulds of the held-out kinds at no more than MAX_FALSE_ALARMS of the trained-on
+moulds'. With --cache (run.py's, holding the five models), that threshold is tried family by
+family on FRESH_MOULDS new moulds of each family (seed FRESH_SEED), under each model.
 
-  python experiments/generalisation/novelty_targets.py
+  python experiments/generalisation/novelty_targets.py [--cache CACHE]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -24,6 +24,7 @@ from scipy.stats import mannwhitneyu, spearmanr
 HERE = Path(__file__).resolve().parent
 SCORES = ("feature_distance", "disagreement", "descriptor_distance")
 MAX_FALSE_ALARMS = 0.2  # issue 41's goal for a domain verdict: at most 20% false alarms
+FRESH_SEED, FRESH_MOULDS = 99, 16  # the per-family check's new moulds
 
 
 def kind_threshold(score, new, max_false_alarms: float = MAX_FALSE_ALARMS) -> dict:
@@ -49,7 +50,8 @@ def auroc(flag, score) -> float:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--table", type=Path, default=HERE / "novelty_moulds.csv")
-    ap.add_argument("--out", type=Path, default=HERE, help="where new_kind.json goes")
+    ap.add_argument("--cache", type=Path, default=None,
+                    help="run.py's cache: try the threshold family by family on new moulds")
     a = ap.parse_args(argv)
     d = pd.read_csv(a.table)
     d = d[d["held_out"] != "none"]
@@ -66,12 +68,38 @@ def main(argv=None) -> int:
     print(pd.DataFrame(rows).round(3).to_string(index=False))
     print("median |log tension ratio|, held-out kind / trained-on:",
           d.groupby("held_out_mould")["tension_error"].median().round(3).to_dict())
-    choice = {"score": "descriptor_distance",
-              **kind_threshold(d["descriptor_distance"], d["held_out_mould"])}
-    (a.out / "new_kind.json").write_text(json.dumps(choice, indent=1) + "\n")
-    print(f"new kind above {choice['threshold']:.3g}: {choice['caught']:.0%} of the held-out "
-          f"kinds' moulds caught at {choice['false_alarms']:.0%} false alarms")
+    choice = kind_threshold(d["descriptor_distance"], d["held_out_mould"])
+    print(f"descriptor distance above {choice['threshold']:.3g}: {choice['caught']:.0%} of the "
+          f"held-out kinds' moulds caught at {choice['false_alarms']:.0%} false alarms")
+    if a.cache is not None:
+        print(per_family(a.cache, choice["threshold"]).to_string())
     return 0
+
+
+def per_family(cache: Path, threshold: float) -> pd.DataFrame:
+    """Share of FRESH_MOULDS new moulds of each family above `threshold` (the descriptor
+    distance to each leave-one-kind-out model's training moulds), by model."""
+    from condor.model.scenes import get_scene
+    from condor.moulds.lab import FAMILY_NAMES, lab_mould
+    from condor.moulds.paper import generate_mould
+    from condor.surrogate.novelty import bank_of, descriptors, knn_distance
+    from condor.surrogate.predict import Predictor
+
+    from run import KINDS
+
+    scene = get_scene("default")
+    ids = range(100, 100 + FRESH_MOULDS)
+    moulds = {f: [lab_mould(FRESH_SEED, i, f, scene) for i in ids] for f in FAMILY_NAMES}
+    moulds["paper"] = [generate_mould(FRESH_SEED, i, scene) for i in ids]
+    table = {}
+    for kind in KINDS:
+        name = f"without_{'_'.join(kind)}"
+        path = sorted(cache.glob(f"{name}_e120_*.pt"))[-1]
+        bank = bank_of(Predictor(path, device="cpu").state)["descriptors"]
+        table[name] = {f"{f}{' (held out)' if f in kind else ''}":
+                       float((knn_distance(bank, np.stack([descriptors(m) for m in ms]))
+                              > threshold).mean()) for f, ms in moulds.items()}
+    return pd.DataFrame(table).round(2)
 
 
 if __name__ == "__main__":
