@@ -40,6 +40,8 @@ def main(argv=None) -> int:
     ap.add_argument("--runs", type=int, default=3)
     ap.add_argument("--pack", action="store_true")
     ap.add_argument("--cache", type=Path, default=CACHE)
+    ap.add_argument("--out", type=Path, default=None,
+                    help="write the table here (default: ladder_<scene>.csv beside this script)")
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
     rows = []
@@ -67,7 +69,7 @@ def main(argv=None) -> int:
         rows.append(row)
         print(row)
     if rows:
-        out = HERE / f"ladder_{scene.name}.csv"
+        out = a.out or HERE / f"ladder_{scene.name}.csv"
         pd.DataFrame(rows).to_csv(out, index=False, float_format="%.5g")
         print(f"wrote {out}")
     return 0
