@@ -5,9 +5,10 @@ convex polygons), each joined at a point of the outline so far, concave corners 
 1-3 holes a third of the time and 1-8 posts inside, spread apart or placed at random; drawn,
 scaled to an area in the lab range, turned, centred and checked as a lab mould is
 (`condor.moulds.lab.family_geometry`, the same stream). The paper's generator never makes one
-or two posts or holes, and each lab family makes one kind of each: a surrogate that trains on
-composite moulds meets fewer moulds unlike anything it saw. Measured in
-experiments/generalisation/README.md ("Composite moulds"). A dataset draws
+or two posts or holes, and each lab family makes one kind of each: the hope was that a
+surrogate trained on composite moulds meets fewer moulds unlike anything it saw. Measured in
+experiments/generalisation/README.md ("Composite moulds in training"): the held-out kinds'
+error stayed, their tension bias moved both ways, so the default draws none. A dataset draws
 `moulds.composite_fraction` of its training and validation lab moulds from here
 (`condor.moulds.sources`); the test sets never hold one.
 """
