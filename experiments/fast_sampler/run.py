@@ -101,6 +101,9 @@ def main(argv=None) -> int:
                     help="read the reference runs from this folder (paper_reference/run.py "
                          "--product) instead of the shipped product")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--min-moulds", type=int, default=2,
+                    help="score against a rung only when this many moulds have 2 runs of it "
+                         "(1: a single mould's figures, without an interval over moulds)")
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
     warm_up()
@@ -129,7 +132,7 @@ def main(argv=None) -> int:
             energy.append(em)
             evals.append(vm)
         for budget, (keep, rf, re) in refs.items():
-            if len(keep) < 2:
+            if len(keep) < a.min_moulds:
                 continue
             row = fidelity_row(spec, scene.name, f"anneal {budget_tag(budget)}",
                                pad_replicas([fields[i] for i in keep]),
