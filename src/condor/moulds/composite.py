@@ -4,7 +4,7 @@ A composite mould is a union of 1-3 random parts (stadiums, ellipses, rounded re
 convex polygons), each joined at a point of the outline so far, concave corners rounded, with
 1-3 holes a third of the time and 1-8 posts inside, spread apart or placed at random; drawn,
 scaled to an area in the lab range, turned, centred and checked as a lab mould is
-(`condor.moulds.lab.family_geometry`, the same stream). The paper's generator never makes one
+(`condor.moulds.lab.family_mould`, the same stream). The paper's generator never makes one
 or two posts or holes, and each lab family makes one kind of each: the hope was that a
 surrogate trained on composite moulds meets fewer moulds unlike anything it saw. Measured in
 experiments/generalisation/README.md ("Composite moulds in training"): the held-out kinds'
@@ -22,10 +22,10 @@ from shapely.geometry import Point, Polygon
 
 from condor.model.scenes import Scene
 from condor.moulds.lab import (
-    AREA_RANGE, ARC_SEGMENTS, LabFamily, _fillet, _round_rect, _stadium, family_geometry,
+    AREA_RANGE, ARC_SEGMENTS, LabFamily, _fillet, _round_rect, _stadium, family_mould,
     random_posts,
 )
-from condor.moulds.mould import Mould, check_mould
+from condor.moulds.mould import Mould
 
 COMPOSITE = "composite"  # the source's and its moulds' family name
 
@@ -94,9 +94,4 @@ def composite_mould(seed: int, mould_id: int, scene: Scene,
                     area_range: tuple[float, float] = AREA_RANGE) -> Mould:
     """Composite mould `mould_id` of dataset `seed` in `scene`'s box, checked against the mould
     contract."""
-    polygon, tethers = family_geometry(seed, mould_id, COMPOSITE_FAMILY, scene.box,
-                                       scene.max_extent, area_range)
-    mould = Mould(mould_id=int(mould_id), seed=int(seed), box=float(scene.box), polygon=polygon,
-                  tethers=tethers, family=COMPOSITE)
-    check_mould(mould)
-    return mould
+    return family_mould(seed, mould_id, COMPOSITE_FAMILY, scene, area_range)

@@ -368,10 +368,19 @@ def lab_mould(seed: int, mould_id: int, family: str, scene: Scene,
               area_range: tuple[float, float] = AREA_RANGE) -> Mould:
     """Lab mould `mould_id` of dataset `seed`, of `family`, in `scene`'s box (at most
     scene.max_extent of it wide), checked against the mould contract."""
-    polygon, tethers = lab_geometry(seed, mould_id, family, scene.box, scene.max_extent,
-                                    area_range)
+    if family not in FAMILIES:
+        raise ValueError(f"unknown lab family {family!r}; choose one of {FAMILY_NAMES}")
+    return family_mould(seed, mould_id, FAMILIES[family], scene, area_range)
+
+
+def family_mould(seed: int, mould_id: int, fam: LabFamily, scene: Scene,
+                 area_range: tuple[float, float] = AREA_RANGE) -> Mould:
+    """Mould `mould_id` of family `fam` (`family_geometry`) in `scene`'s box, carrying the
+    family's name, checked against the mould contract."""
+    polygon, tethers = family_geometry(seed, mould_id, fam, scene.box, scene.max_extent,
+                                       area_range)
     mould = Mould(mould_id=int(mould_id), seed=int(seed), box=float(scene.box), polygon=polygon,
-                  tethers=tethers, family=family)
+                  tethers=tethers, family=fam.name)
     check_mould(mould)
     return mould
 
