@@ -32,13 +32,13 @@ OVERLAYS = ["tiny.yaml", "paper.yaml"]
 
 
 def test_the_default_run_is_the_schemas_defaults():
-    """config.yaml shows keys to change, each at the schema's default: the default run (400
+    """config.yaml shows keys to change, each at the schema's default: the default run (550
     moulds, 100 test moulds with 4 replicas, half the moulds from the lab families, the
     faithful solver, the `unet` preset) is the schema's."""
     config = Config.load(CONFIG_DIR / "config.yaml")
     assert config == Config.default()
     assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"],
-            config.moulds["lab_fraction"]) == (400, 100, 4, 0.5)
+            config.moulds["lab_fraction"]) == (550, 100, 4, 0.5)
     assert config.solver()[0] == "relaxed_anneal"
     assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
 
