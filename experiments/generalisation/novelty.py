@@ -17,6 +17,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import sys
 import time
 from pathlib import Path
@@ -93,18 +94,22 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=Path.home() / ".cache/condor/generalisation")
     ap.add_argument("--out", type=Path, default=HERE)
     ap.add_argument("--lab-share", type=float, default=0.5)
+    ap.add_argument("--n-train", type=int, default=study.N_TRAIN,
+                    help="the models' training moulds (run.py's --n-train)")
     a = ap.parse_args(argv)
     ds, fresh = open_store(a.pool), open_store(a.fresh)
     per = pd.read_csv(a.out / "moulds.csv")
     rows = []
-    for name, spec in study.models(ds, a.lab_share).items():
-        checkpoints = sorted(a.cache.glob(f"{name}_*.pt"))
+    for name, spec in study.models(ds, a.lab_share, a.n_train).items():
+        # run.train_model's names: NAME[_eEPOCHS]_KEY.pt (not NAME_n450_..., NAME_extra...)
+        own = re.compile(rf"^{re.escape(name)}(_e\d+)?_[0-9a-f]{{12}}\.pt$")
+        checkpoints = sorted(p for p in a.cache.glob(f"{name}_*.pt") if own.match(p.name))
         mine = per[per["model"] == name]
         if not checkpoints or mine.empty:
             continue
         predictor = Predictor(checkpoints[-1], device="cpu", precision="float32")
         held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
-        train_ids = study.choose(ds, "train", study.N_TRAIN, spec["lab_share"], held)
+        train_ids = study.choose(ds, "train", spec["n_train"], spec["lab_share"], held)
         bank = scores_of(predictor, ds, train_ids, a.cache, "train")
         for group, store in (("pool", ds), ("fresh", fresh)):
             subset = mine[mine["family"].eq(study.FRESH) == (group == "fresh")]

@@ -4,11 +4,12 @@ leave-one-kind-out model on every family scored), and two findings (src/condor/f
 and the fresh seed's) and `novelty` (novelty_calibration.csv and the threshold chosen by
 novelty.py, which `condor predict` reads).
 
-  python experiments/generalisation/ship.py --commit COMMIT
+  python experiments/generalisation/ship.py --commit COMMIT [--tables n450 --n-train 450 \
+      --lab-share 0.44]
 
-reads generalisation.csv, novelty.csv and novelty_calibration.csv of this folder (run.py's and
-novelty.py's outputs, copied here) and novelty_choice.json (novelty.py's chosen score and
-threshold with its rates).
+reads generalisation.csv, novelty.csv and novelty_calibration.csv of --tables (a folder of this
+study: run.py's and novelty.py's outputs; this folder itself by default) and
+novelty_choice.json (novelty.py's chosen score and threshold with its rates).
 """
 
 from __future__ import annotations
@@ -39,14 +40,19 @@ def held_out_rows(table: pd.DataFrame) -> pd.DataFrame:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--commit", required=True, help="the commit the study ran at")
+    ap.add_argument("--tables", default=".", help="the folder of the tables, in this study's")
+    ap.add_argument("--n-train", type=int, default=250, help="the models' training moulds")
+    ap.add_argument("--lab-share", type=float, default=0.5, help="their lab share")
     a = ap.parse_args(argv)
-    table = pd.read_csv(HERE / "generalisation.csv")[list(GENERALISATION_COLUMNS)]
+    tables = (HERE / a.tables).resolve()
+    where = tables.relative_to(REPO).as_posix()
+    table = pd.read_csv(tables / "generalisation.csv")[list(GENERALISATION_COLUMNS)]
     (REPO / "docs" / "data").mkdir(exist_ok=True)
     table.to_csv(REPO / "docs" / "data" / "generalisation.csv", index=False)
     held_out_rows(table).to_csv(FINDINGS / "generalisation.csv", index=False)
-    calibration = pd.read_csv(HERE / "novelty_calibration.csv")[list(NOVELTY_COLUMNS)]
+    calibration = pd.read_csv(tables / "novelty_calibration.csv")[list(NOVELTY_COLUMNS)]
     calibration.to_csv(FINDINGS / "novelty.csv", index=False)
-    choice = json.loads((HERE / "novelty_choice.json").read_text())
+    choice = json.loads((tables / "novelty_choice.json").read_text())
     n_models = table["held_out"].nunique()
     path = FINDINGS / "findings.json"
     findings = json.loads(path.read_text())
@@ -57,8 +63,9 @@ def main(argv=None) -> int:
                     "beside them?",
         "table": "generalisation.csv",
         "experiment": "experiments/generalisation",
-        "source": f"experiments/generalisation/generalisation.csv (run.py --steps lofo "
-                  f"--epochs 120: {n_models} models of 250 training moulds, half lab; 8 test "
+        "source": f"{where}/generalisation.csv (run.py --steps lofo --epochs 120 "
+                  f"--n-train {a.n_train} --lab-share {a.lab_share:g}: {n_models} models of "
+                  f"{a.n_train} training moulds, {a.lab_share:.0%} lab; 8 test "
                   "moulds a family x 4 replicas; error against the expected fields with the "
                   "noise removed, 95% intervals over moulds)",
         "commit": a.commit,
@@ -68,7 +75,7 @@ def main(argv=None) -> int:
                     "on moulds that new (the error over one simulation's scatter, by novelty)?",
         "table": "novelty.csv",
         "experiment": "experiments/generalisation",
-        "source": f"experiments/generalisation/novelty_calibration.csv (novelty.py: the "
+        "source": f"{where}/novelty_calibration.csv (novelty.py: the "
                   f"{choice['score']} of {choice['n_moulds']} test moulds under the "
                   f"{n_models} leave-one-kind-out models; above the threshold "
                   f"{choice['caught']:.0%} of the moulds above one simulation's scatter are "
