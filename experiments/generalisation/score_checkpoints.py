@@ -24,8 +24,7 @@ from condor.studies.families import family_rows  # noqa: E402
 from condor.studies.recipes import reference_ensemble  # noqa: E402
 from condor.studies.scoring import predict_replica_moulds  # noqa: E402
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-import run as study  # noqa: E402
+import run as study  # noqa: E402  (its own folder is on sys.path, as for any script)
 
 
 def main(argv=None) -> int:
