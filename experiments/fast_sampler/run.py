@@ -38,19 +38,12 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
 from condor.studies.fidelity import fidelity_row  # noqa: E402
-from condor.studies.paper_reference import budget_tag, mould_of, reference_rung, scene_fields  # noqa: E402
+from condor.studies.paper_reference import budget_tag, mould_of, reference_rung_from, scene_fields  # noqa: E402
 
 CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
 # the paper scene's 1e5 runs of moulds whose 1e6 rung is complete, out of the product files
 RUNGS_MOVED = Path(__file__).resolve().parents[1] / "paper_reference" / "rung_1e5"
 
-
-def rung_of(scene, seed: int, mould: int, budget: float, folder, moved):
-    """reference_rung from `folder` (None: the product), else from `moved` when it lacks it."""
-    fields, energies = reference_rung(scene, seed, mould, budget, folder)
-    if len(fields) < 2 and moved is not None and Path(moved).is_dir():
-        fields, energies = reference_rung(scene, seed, mould, budget, moved)
-    return fields, energies
 
 
 def run_method(spec: str, scene, mould, seed: int) -> SimResult:
@@ -123,8 +116,8 @@ def main(argv=None) -> int:
     moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
     refs = {}
     for budget in a.reference:
-        f, e = map(list, zip(*(rung_of(scene, a.seed, m, budget, a.reference_folder,
-                                       a.moved_folder) for m in a.moulds)))
+        f, e = map(list, zip(*(reference_rung_from(scene, a.seed, m, budget,
+                                                   (a.reference_folder, a.moved_folder)) for m in a.moulds)))
         keep = [i for i, x in enumerate(f) if len(x) >= 2]
         refs[budget] = (keep, f, e)
         print(f"reference anneal {budget_tag(budget)}: {len(keep)} moulds with >= 2 runs",

@@ -20,16 +20,16 @@ from pathlib import Path
 
 import numpy as np
 
+from condor.files import atomic_path
 from condor.studies.paper_reference import budget_tag, reference_file
 
 HERE = Path(__file__).resolve().parent
 
 
 def _write(path: Path, meta: dict, arrays: dict) -> None:
-    tmp = path.with_name(path.name + ".tmp")  # not *.npz: reference_moulds globs those
-    with open(tmp, "wb") as fh:
-        np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
-    tmp.replace(path)
+    with atomic_path(path) as tmp:  # a hidden name: reference_moulds globs *.npz
+        with open(tmp, "wb") as fh:
+            np.savez_compressed(fh, meta=np.array(json.dumps(meta)), **arrays)
 
 
 def _read(path: Path) -> tuple[dict, dict]:

@@ -24,19 +24,12 @@ import pandas as pd
 from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
-from condor.studies.paper_reference import (budget_tag, pack_mould, reference_rung,
+from condor.studies.paper_reference import (budget_tag, pack_mould, reference_rung_from,
                                              run_provenance)
 
 HERE = Path(__file__).resolve().parent
 RUNGS_MOVED = HERE / "rung_1e5"  # the paper scene's 1e5 runs of moulds whose 1e6 rung is done
 
-
-def rung_of(scene, seed: int, mould: int, budget: float, folder, moved):
-    """reference_rung from `folder` (None: the product), else from `moved` when it lacks it."""
-    fields, energies = reference_rung(scene, seed, mould, budget, folder)
-    if len(fields) < 2 and moved.is_dir():
-        fields, energies = reference_rung(scene, seed, mould, budget, moved)
-    return fields, energies
 CACHE = HERE / "cache"  # run.py's default too
 
 
@@ -61,7 +54,7 @@ def main(argv=None) -> int:
                              run_provenance("experiments/paper_reference/run.py"))
             if out is not None:
                 print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
-    data = {b: [rung_of(scene, a.seed, m, b, None, RUNGS_MOVED) for m in a.moulds]
+    data = {b: [reference_rung_from(scene, a.seed, m, b, (None, RUNGS_MOVED)) for m in a.moulds]
             for b in rungs}
     for lower, upper in zip(rungs, rungs[1:]):
         keep = [i for i in range(len(a.moulds))

@@ -227,6 +227,14 @@ def reference_rung(scene: Scene, dataset_seed: int, mould_id: int, budget: float
     return [r.fields(scene) for r in runs], [r.energy_per_cell for r in runs]
 
 
+def reference_rung_from(scene: Scene, dataset_seed: int, mould_id: int, budget: float,
+                        folders) -> tuple[list, list]:
+    """reference_rung from the first of `folders` (None: the product) that holds at least 2
+    runs of it (a rung moved out of the product lies in a study's folder), else the first's."""
+    found = [reference_rung(scene, dataset_seed, mould_id, budget, f) for f in folders]
+    return next((r for r in found if len(r[0]) >= 2), found[0])
+
+
 def reference_moulds(scene_name: str, dataset_seed: int, folder=None) -> list[int]:
     """The moulds the product holds a reference of, in increasing id."""
     prefix = f"{scene_name}_s{dataset_seed}_m"
