@@ -45,7 +45,8 @@ write_config() {
     if [[ -e $CONF ]] && ! grep -q "^# written by condor localhost-cluster.sh" "$CONF"; then
         die "$CONF exists and was not written by this script; stop (it belongs to another cluster)"
     fi
-    cat > "$CONF" <<EOF
+    # written beside and moved into place: a reader (sinfo) never sees half a file
+    cat > "$CONF.new" <<EOF
 # written by condor localhost-cluster.sh: a single-node cluster on $HOST
 ClusterName=condor-local
 SlurmctldHost=$HOST
@@ -83,10 +84,27 @@ PartitionName=debug Nodes=$HOST Default=YES MaxTime=INFINITE State=UP
 # a second partition on the same node: a site's partition named with slurm_partition
 PartitionName=compute Nodes=$HOST MaxTime=INFINITE State=UP
 EOF
-    cat > /etc/slurm/gres.conf <<EOF
+    cat > /etc/slurm/gres.conf.new <<EOF
 # written by condor localhost-cluster.sh
 NodeName=$HOST Name=gpu Count=1 File=/dev/null
 EOF
+}
+
+# The config just written (.new) is the one in place: nothing to change.
+config_unchanged() {
+    cmp -s "$CONF.new" "$CONF" && cmp -s /etc/slurm/gres.conf.new /etc/slurm/gres.conf
+}
+
+install_config() {
+    mv "$CONF.new" "$CONF"
+    mv /etc/slurm/gres.conf.new /etc/slurm/gres.conf
+}
+
+node_up() {
+    case $(sinfo -h -n "$HOST" -o %T 2>/dev/null || true) in
+        idle|mixed|allocated) return 0 ;;
+        *) return 1 ;;
+    esac
 }
 
 running() { [[ -s $1 ]] && kill -0 "$(cat "$1")" 2>/dev/null; }
@@ -101,6 +119,14 @@ start() {
     exec 9>/run/condor-localhost-cluster.lock
     flock 9
     write_config
+    # Already up with this config (another worker started it, or an earlier session): leave it
+    # alone. Rewriting the config or reconfiguring under a running workflow disturbs its jobs.
+    if config_unchanged && running "$DIR/slurmctld.pid" && running "$DIR/slurmd.pid" && node_up; then
+        rm -f "$CONF.new" /etc/slurm/gres.conf.new
+        sinfo
+        return 0
+    fi
+    install_config
     # munge: the key comes with the package; its socket directory may not exist in a container
     install -d -o munge -g munge -m 0755 /run/munge
     [[ -s /etc/munge/munge.key ]] || die "/etc/munge/munge.key missing: reinstall munge or create it with mungekey"
