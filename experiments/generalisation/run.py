@@ -143,20 +143,21 @@ def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]
 
 
 def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int,
-                extra=None, extra_share: float = 0.0) -> Path:
+                extra=None, extra_share: float = 0.0, extra_lab_share: float = 1.0) -> Path:
     """Train (or find in `cache`) the model `spec` names; with `extra` (a store) and
     `extra_share`, that share of its training moulds comes from the extra store's training
-    moulds (in id order) and the pool's lab share applies to the rest."""
+    moulds (`choose`: extra_lab_share of them lab moulds, the held-out kinds left out; 1, the
+    composite store's, takes them in id order) and the pool supplies the rest, so that the
+    model's lab share is spec's."""
     held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
     n = spec.get("n_train", N_TRAIN)
     n_extra = int(round(extra_share * n)) if extra is not None else 0
     n_paper = n - int(round(spec["lab_share"] * n))
-    train_ids = choose(ds, "train", n - n_extra, 1 - n_paper / (n - n_extra), held)
+    n_paper_extra = n_extra - int(round(extra_lab_share * n_extra))
+    n_pool = n - n_extra
+    train_ids = choose(ds, "train", n_pool, 1 - (n_paper - n_paper_extra) / n_pool, held)
     if n_extra:
-        extra_ids = first_replicas(extra, "train")[:n_extra]
-        if len(extra_ids) < n_extra:
-            raise ValueError(f"the extra store holds {len(extra_ids)} training moulds, not "
-                             f"{n_extra}")
+        extra_ids = choose(extra, "train", n_extra, extra_lab_share, held)
         ds = with_extra(ds, extra, extra_ids)
         train_ids = train_ids + [int(i) + EXTRA_OFFSET for i in extra_ids]
     val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
@@ -214,6 +215,9 @@ def main(argv=None) -> int:
                     help="a store of more training moulds (composite.yaml's dataset.zarr)")
     ap.add_argument("--extra-share", type=float, default=0.25,
                     help="the share of a model's training moulds from --extra")
+    ap.add_argument("--extra-lab-share", type=float, default=1.0,
+                    help="the lab share of the moulds from --extra (1: composite.yaml's, every "
+                         "one a lab mould; pool2.yaml's: the model's --lab-share)")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
     config = Config.load(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
@@ -242,7 +246,7 @@ def main(argv=None) -> int:
     wanted = {name + suffix: spec for name, spec in wanted.items()}
     for name, spec in wanted.items():
         checkpoint = train_model(ds, name, spec, settings, a.cache, a.threads, extra,
-                                 a.extra_share)
+                                 a.extra_share, a.extra_lab_share)
         for group, ensemble in ensembles.items():
             store = fresh if group == FRESH else ds
             raw = predictions(checkpoint, store, ensemble.moulds, a.cache, group.replace(" ", "_"))
