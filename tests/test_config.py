@@ -80,6 +80,30 @@ def test_defaults_come_from_the_schema_and_the_library_only():
     assert config.data_config()["no_tether_fraction"] == MouldParams().no_tether_fraction
 
 
+def test_the_relaxed_anneals_default_budget_grows_with_the_box_area_and_a_set_one_is_kept():
+    """The validated budgets: 200 moves a cell in the default scene's box, 800 in the paper
+    scene's (twice the side); a box between gets the same budget per unit area, a smaller one
+    the default's; another solver's default and a budget set in the config are left alone.
+    The resolved budget defines the data (data_config), so a store of one is never filled
+    with the other."""
+    def resolved(**data):
+        return Config.from_dict({"seed": 1, "n_moulds": 10, "split": {"test": 2}, **data})
+
+    default, paper = resolved(scene="default"), resolved(scene="paper")
+    assert default.solver() == ("relaxed_anneal", DEFAULT_BUDGET["relaxed_anneal"])
+    assert paper.solver() == ("relaxed_anneal", 4 * DEFAULT_BUDGET["relaxed_anneal"])
+    assert resolved(scene="tiny").solver() == default.solver()
+    side = 1.5 * default.scene.box
+    between = resolved(scene="default", scene_overrides={"box": side})
+    per_area = [c.solver()[1] / c.scene.box ** 2 for c in (default, between, paper)]
+    assert per_area == pytest.approx([per_area[0]] * 3)
+    assert resolved(scene="paper", simulation={"solver": "lbfgs"}).solver() == \
+        ("lbfgs", DEFAULT_BUDGET["lbfgs"])
+    assert resolved(scene="paper", simulation={"budget": 200}).solver()[1] == 200
+    assert paper.data_config()["budget"] != resolved(scene="paper", simulation={"budget": 200}) \
+        .data_config()["budget"]
+
+
 def test_config_is_frozen_and_the_callers_dict_is_untouched():
     raw = {"scene": "tiny", "seed": 1, "n_moulds": 10, "split": {"test": 2}}
     config = Config.from_dict(raw)

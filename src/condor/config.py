@@ -33,7 +33,7 @@ from condor.moulds.mould import PAPER
 from condor.moulds.paper import MouldParams
 from condor.moulds.sources import assign_sources, make_mould, tether_free
 from condor.model.scenes import Scene, get_scene
-from condor.model.simulate import DEFAULT_BUDGET, DEFAULT_SOLVER
+from condor.model.simulate import DEFAULT_SOLVER, default_budget
 from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.recipes import MIN_REPLICAS
@@ -226,10 +226,11 @@ class Config:
         return [i for i in test if (sources[i] == PAPER) == (source == "paper")]
 
     def solver(self) -> tuple[str, float]:
-        """The simulation's solver and budget, None resolved to the simulator's defaults."""
+        """The simulation's solver and budget, None resolved to the simulator's defaults at
+        this scene's box (condor.model.simulate.default_budget)."""
         solver = self.simulation["solver"] or DEFAULT_SOLVER
         budget = self.simulation["budget"]
-        return solver, float(DEFAULT_BUDGET[solver] if budget is None else budget)
+        return solver, (default_budget(solver, self.scene.box) if budget is None else float(budget))
 
     def data_config(self) -> dict:
         """What defines the data in a results folder: a folder built for one of these never

@@ -61,6 +61,7 @@ from condor.model import lbfgs as lbfgs_mod
 from condor.model import minimise as minimise_mod
 from condor.model.energy import DELTA, cell_tension, lattice_energy, random_orientations
 from condor.model.lattice import Lattice, build_lattice, signed_volumes
+from condor.model.scenes import PRESETS
 from condor.model.walls import residual_forces
 
 SOLVERS = ("lbfgs", "anneal", "minimise", "hybrid", "relaxed_anneal")
@@ -71,6 +72,13 @@ DEFAULT_BUDGET = {"lbfgs": float(lbfgs_mod.MAX_ITER), "anneal": 1.0e3,
                   "relaxed_anneal": 200.0}
 DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mod.FTOL,
                 "hybrid": minimise_mod.FTOL, "relaxed_anneal": lbfgs_mod.FTOL}
+# The relaxed anneal's budget grows with the box's area. The orientation order it forms spans
+# the box, and moves of one cell carry it over ~L^2 sweeps; the positions' long modes are the
+# relaxations' (RELAXED_RELAX). DEFAULT_BUDGET's 200 moves a cell were validated in the default
+# scene's box (BUDGET_BOX) and 800 in the paper scene's, twice its side, where 200 left the
+# cells of a tether-free mould flat (experiments/fast_sampler, paper_budget_1e6.csv). A smaller
+# box keeps the default's 200.
+BUDGET_BOX = PRESETS["default"].box  # l0
 RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
 RELAXED_MOVES = 10  # moves a cell between two relaxations of the positions (5 sweeps)
 RELAXED_RELAX = 40  # L-BFGS evaluations of each relaxation
@@ -243,6 +251,17 @@ def simulate_lattice(lattice: Lattice, positions, orientations, solver: str | No
         energy=float(energy), solver=solver, budget=used_budget, seed=seed, seconds=seconds,
         status=status, info=_json_safe(info),
     )
+
+
+def default_budget(solver: str | None, box: float) -> float:
+    """The budget a solver gets in a square box of side `box` (l0) when none is asked for:
+    DEFAULT_BUDGET's, and for the relaxed anneal that times (box / BUDGET_BOX)^2 where the box
+    is larger than the default scene's (see BUDGET_BOX)."""
+    solver = solver or DEFAULT_SOLVER
+    budget = DEFAULT_BUDGET[solver]
+    if solver == "relaxed_anneal":
+        budget *= max(1.0, (box / BUDGET_BOX) ** 2)
+    return float(budget)
 
 
 def _check_solver(solver: str, budget, ftol) -> None:

@@ -45,7 +45,7 @@ from condor.moulds.sources import make_mould
 from condor.progress import progress
 from condor.model.scenes import Scene, get_scene, same_length
 from condor.data.seeds import replica_seed
-from condor.model.simulate import SimResult, simulate, warm_up
+from condor.model.simulate import SimResult, default_budget, simulate, warm_up
 from condor.data.store_check import (check_metadata, check_store, inputs_whole, restore_layout,
                                      scan_store, set_aside)
 from condor.data.store import (create_store, open_group, open_store, sample_index,
@@ -153,6 +153,8 @@ def hardware() -> str:
 def simulate_mould(mould: Mould, scene: Scene, solver: str | None, budget, seed: int) -> SimResult:
     """One simulation of `mould` in `scene`; the result records the scene it belongs to and
     the hardware it ran on."""
+    if budget is None:
+        budget = default_budget(solver, scene.box)
     result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
                       seed=seed)
     result.info["scene"] = scene.to_dict()
