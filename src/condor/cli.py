@@ -391,7 +391,8 @@ def _parser_simulate(sub) -> None:
     p.add_argument("--solver", default=None, choices=list(SOLVERS),
                    help=f"default: the simulator's ({DEFAULT_SOLVER})")
     p.add_argument("--budget", type=_positive_float, default=None,
-                   help="solver budget (anneal: moves per cell); default: the solver's own")
+                   help="solver budget (anneal: moves per cell); default: the solver's own "
+                        "for the scene's box (condor.model.simulate.default_budget)")
     p.add_argument("--seed", type=_non_negative_int, default=0, help="simulation seed")
     _scene_arg(p)
     _user_mould_args(p)
