@@ -44,6 +44,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--out", type=Path, default=None,
                     help="write the table here (default: ladder_<scene>.csv beside this script)")
+    ap.add_argument("--reference-folder", type=Path, default=None,
+                    help="read the runs from this folder (run.py --product) instead of the "
+                         "shipped product")
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
     rows = []
@@ -54,7 +57,8 @@ def main(argv=None) -> int:
                              run_provenance("experiments/paper_reference/run.py"))
             if out is not None:
                 print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
-    data = {b: [reference_rung_from(scene, a.seed, m, b, (None, RUNGS_MOVED)) for m in a.moulds]
+    folders = (a.reference_folder, RUNGS_MOVED)  # None: the shipped product
+    data = {b: [reference_rung_from(scene, a.seed, m, b, folders) for m in a.moulds]
             for b in rungs}
     for lower, upper in zip(rungs, rungs[1:]):
         keep = [i for i in range(len(a.moulds))

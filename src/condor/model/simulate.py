@@ -77,7 +77,8 @@ DEFAULT_FTOL = {"lbfgs": lbfgs_mod.FTOL, "anneal": None, "minimise": minimise_mo
 # relaxations' (RELAXED_RELAX). DEFAULT_BUDGET's 200 moves a cell were validated in the default
 # scene's box (BUDGET_BOX) and 800 in the paper scene's, twice its side, where 200 left the
 # cells of a tether-free mould flat (experiments/fast_sampler, paper_budget_1e6.csv). A smaller
-# box keeps the default's 200.
+# box keeps the default's 200: in the tiny scene's (half the side) 50 moves left a tether-free
+# mould's cells flat where 200 did not (tiny_budget_1e6.csv).
 BUDGET_BOX = PRESETS["default"].box  # l0
 RELAXED_WINDOW = (0.03, 0.001)  # kappa0 l0^2: T_hi, T_lo of the relaxed anneal
 RELAXED_MOVES = 10  # moves a cell between two relaxations of the positions (5 sweeps)
