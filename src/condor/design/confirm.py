@@ -31,7 +31,7 @@ from condor.data.fields import cell_fields, normalise
 from condor.moulds.mould import Mould, input_channels
 from condor.data.seeds import replica_seed
 from condor.model.scenes import same_length
-from condor.model.simulate import simulate
+from condor.model.simulate import default_budget, simulate
 
 from .objectives import Objective
 from .search import SearchResult
@@ -142,6 +142,8 @@ def _simulate_one(task):
     """One replica (top level, so that a process pool can run it), rasterised on the scene's
     grid as the dataset's fields are."""
     mould, scene, solver, budget, seed = task
+    if budget is None:  # the scene's, as the dataset's simulations get it
+        budget = default_budget(solver, scene.box)
     result = simulate(mould.polygon, mould.tethers, scene.depth, solver=solver, budget=budget,
                       seed=seed)
     fields = None
