@@ -218,6 +218,8 @@ def main(argv=None) -> int:
     ap.add_argument("--extra-lab-share", type=float, default=1.0,
                     help="the lab share of the moulds from --extra (1: composite.yaml's, every "
                          "one a lab mould; pool2.yaml's: the model's --lab-share)")
+    ap.add_argument("--inputs", default=None,
+                    help="what the models read (TrainConfig.inputs; default: the preset's)")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
     config = Config.load(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
@@ -227,6 +229,9 @@ def main(argv=None) -> int:
     ds, fresh = open_store(a.pool), open_store(a.fresh)
     extra = open_store(a.extra) if a.extra is not None else None
     suffix = f"_extra{a.extra_share:g}" if extra is not None else ""
+    if a.inputs is not None and a.inputs != settings["inputs"]:
+        settings = {**settings, "inputs": a.inputs}
+        suffix += f"_{a.inputs}"
     test = first_replicas(ds, "test")
     fam = families_of(ds)
     paper_ids = [int(i) for i in test if fam[i] == PAPER]

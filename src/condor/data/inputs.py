@@ -40,10 +40,15 @@ import numpy as np
 from numba.extending import get_cython_function_address
 
 # TrainConfig.inputs; both: masks, then lattice; mechanics: masks, lattice, stress channels
-INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear")
+INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear", "mechanics_flow")
 LATTICE_CHANNELS = ("mobile", "fixed")
 STRESS_CHANNELS = ("stress_xx", "stress_yy")
 SHEAR_CHANNEL = "stress_xy"
+FLOW_CHANNEL = "flow"
+# The contraction strain at which the spring network's displacement carries the mould's pixels
+# where the cells' density ends up: the strain of least error against the expected density,
+# 0.16 on the pool's test moulds of every family (experiments/generalisation, "The flow input").
+FLOW_STRAIN = 0.16
 # (row, column) offset and stiffness of the spring network's bonds; diagonal springs at half
 # the axial stiffness make a square spring lattice elastically isotropic (Poisson ratio 1/3)
 SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
@@ -317,6 +322,31 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     return _bond_stress(bonds, u, shear).reshape(-1, H, W).astype(np.float32)
 
 
+def flow_density(masks: np.ndarray, strain: float = FLOW_STRAIN) -> np.ndarray:
+    """(2, H, W) masks -> (1, H, W) float32: the mould's and posts' pixels (mass 1 each)
+    carried by `strain` times the contracting spring network's displacement
+    (`spring_displacement`; post pixels stay) and spread bilinearly over the pixels they land
+    between: a first guess of where the cells' density goes. Its sum is the pixels' count
+    (mass that would land outside the grid is kept at the edge pixel)."""
+    masks = np.asarray(masks)
+    H, W = masks.shape[1:]
+    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
+    out = np.zeros((H, W), dtype=np.float64)
+    if not domain.any():
+        return out[None].astype(np.float32)
+    u = spring_displacement(masks) if fixed.any() else np.zeros((H, W, 2))
+    yy, xx = np.nonzero(domain)
+    move = np.where(fixed[yy, xx], 0.0, strain)
+    x = xx + move * u[yy, xx, 0]
+    y = yy + move * u[yy, xx, 1]
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    for dy, dx, w in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
+                      (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
+        np.add.at(out, (np.clip(y0 + dy, 0, H - 1), np.clip(x0 + dx, 0, W - 1)), w)
+    return out[None].astype(np.float32)
+
+
 # Stress channels of the moulds solved last (a mould's masks and `shear` -> its channels),
 # so that a mould predicted again (design's confirmation, a user's repeated `predict`, the
 # evaluation's modes) is not solved again. At the default's 64 px an entry is 32 KiB.
@@ -347,18 +377,35 @@ def _one_blas_thread():
     return _blas_controller().limit(limits=1, user_api="blas")
 
 
+# The channels derived from a mould's masks alone, by the store-variable name a network reads
+# them under (condor.surrogate.samples.INPUT_VARIABLES): a function of one mould's (2, H, W)
+# masks -> (C, H, W) float32.
+DERIVED_CHANNELS = {"stress": lambda b: spring_stress(b),
+                    "stress_tensor": lambda b: spring_stress(b, shear=True),
+                    "flow": lambda b: flow_density(b)}
+
+
 def stress_channels(masks: np.ndarray, shear: bool = False, threads: int | None = None) -> np.ndarray:
-    """(S, 2, H, W) masks -> (S, 2, H, W) stress channels ((S, 3, H, W) with `shear`), each
-    distinct mould solved once (and kept: the last STRESS_CACHE_SIZE moulds solved are not
-    solved again). The moulds not in the cache are solved in `threads` parallel threads
-    (default: the CPUs this process may use; the solve releases the GIL)."""
+    """(S, 2, H, W) masks -> (S, 2, H, W) stress channels ((S, 3, H, W) with `shear`):
+    derived_channels "stress" ("stress_tensor")."""
+    return derived_channels(masks, "stress_tensor" if shear else "stress", threads)
+
+
+def derived_channels(masks: np.ndarray, name: str, threads: int | None = None) -> np.ndarray:
+    """(S, 2, H, W) masks -> (S, C, H, W) channels DERIVED_CHANNELS[name], each distinct
+    mould solved once (and kept: the last STRESS_CACHE_SIZE moulds solved are not solved
+    again). The moulds not in the cache are solved in `threads` parallel threads (default: the
+    CPUs this process may use; the solve releases the GIL)."""
     masks = np.asarray(masks)
     if masks.ndim != 4 or masks.shape[1] != 2:
         raise ValueError(f"masks must have shape (S, 2, H, W), got {masks.shape}")
+    if name not in DERIVED_CHANNELS:
+        raise ValueError(f"no derived channels {name!r}: one of {tuple(DERIVED_CHANNELS)}")
+    function = DERIVED_CHANNELS[name]
     keys, found, missing = [], {}, {}
     for sample in masks:
         binary = np.ascontiguousarray(sample > 0)
-        key = bytes([shear]) + repr(binary.shape).encode() + np.packbits(binary).tobytes()
+        key = name.encode() + repr(binary.shape).encode() + np.packbits(binary).tobytes()
         keys.append(key)
         if key in _STRESS_CACHE:
             _STRESS_CACHE.move_to_end(key)
@@ -369,15 +416,15 @@ def stress_channels(masks: np.ndarray, shear: bool = False, threads: int | None 
     with _one_blas_thread():
         if workers > 1:
             with ThreadPoolExecutor(workers) as pool:
-                solved = list(pool.map(lambda b: spring_stress(b, shear), missing.values()))
+                solved = list(pool.map(function, missing.values()))
         else:
-            solved = [spring_stress(b, shear) for b in missing.values()]
-    for key, stress in zip(missing, solved):
-        stress.setflags(write=False)
-        found[key] = _STRESS_CACHE[key] = stress
+            solved = [function(b) for b in missing.values()]
+    for key, channels in zip(missing, solved):
+        channels.setflags(write=False)
+        found[key] = _STRESS_CACHE[key] = channels
         while len(_STRESS_CACHE) > STRESS_CACHE_SIZE:
             _STRESS_CACHE.popitem(last=False)
-    out = np.empty((masks.shape[0], 3 if shear else 2) + masks.shape[2:], dtype=np.float32)
+    out = np.empty((masks.shape[0], found[keys[0]].shape[0]) + masks.shape[2:], dtype=np.float32)
     for s, key in enumerate(keys):
         out[s] = found[key]
     return out

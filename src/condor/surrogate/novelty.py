@@ -24,10 +24,10 @@ import pandas as pd
 import shapely
 import torch
 
-from condor.data.inputs import stress_channels
+from condor.data.inputs import derived_channels
 
 from .inference import decode, run_network
-from .samples import INPUT_VARIABLES, N_SYMMETRIES, apply_symmetry, resample_inputs
+from .samples import DERIVED_INPUTS, INPUT_VARIABLES, N_SYMMETRIES, apply_symmetry, resample_inputs
 
 PLANAR = N_SYMMETRIES // 2
 K_NEAREST = 5
@@ -40,9 +40,9 @@ def network_inputs(inputs_kind: str, masks: np.ndarray, lattice=None) -> np.ndar
     """The network's input channels (S, C, H, W) at the native grid for masks (S, 2, H, W), as
     a network of `inputs_kind` reads them (lattice given when it reads the lattice)."""
     by_variable = {"inputs": masks, "lattice": lattice}
-    for name in ("stress", "stress_tensor"):
+    for name in DERIVED_INPUTS:
         if name in INPUT_VARIABLES[inputs_kind]:
-            by_variable[name] = stress_channels(masks, name == "stress_tensor")
+            by_variable[name] = derived_channels(masks, name)
     return np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
                            for name in INPUT_VARIABLES[inputs_kind]], axis=1)
 

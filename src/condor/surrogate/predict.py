@@ -15,7 +15,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from condor.data.inputs import stress_channels
+from condor.data.inputs import derived_channels
 from condor.measures.metrics import density_sums, normalise_predicted
 
 from .checkpoint import generator_from_checkpoint, load_checkpoint, scaling_from_checkpoint
@@ -23,7 +23,7 @@ from .inference import decode, default_device, inference_model, resolve_precisio
 from .modes import DEFAULT_PRECISION
 from .networks import UNetGenerator, prediction_mode
 from .physics import estimate_n_cells
-from .samples import FIELD_NAMES, INPUT_VARIABLES, resample_fields, resample_inputs
+from .samples import DERIVED_INPUTS, FIELD_NAMES, INPUT_VARIABLES, resample_fields, resample_inputs
 from .symmetrise import symmetrised
 
 
@@ -233,9 +233,9 @@ class Predictor:
             else:
                 lattice = np.asarray(lattice, dtype=np.float32).reshape(batch.shape)
         by_variable = {"inputs": batch, "lattice": lattice}  # the store's names (samples.py)
-        for name in ("stress", "stress_tensor"):
+        for name in DERIVED_INPUTS:
             if name in INPUT_VARIABLES[self.inputs_kind]:
-                by_variable[name] = stress_channels(batch, name == "stress_tensor")
+                by_variable[name] = derived_channels(batch, name)
         network_inputs = np.concatenate([np.asarray(by_variable[name], dtype=np.float32)
                                          for name in INPUT_VARIABLES[self.inputs_kind]], axis=1)
         raw, spread = run_model(self.model, self.scaling, network_inputs, self.mode, batch_size,
