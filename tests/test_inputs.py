@@ -357,49 +357,6 @@ def test_shear_stress_transforms_as_the_augmentation_says(k):
         assert np.allclose(unsigned[4:], gx[4:6])
 
 
-def test_flow_density_carries_each_pixel_by_the_networks_displacement():
-    """flow_density against a brute-force push of each pixel (a loop: x + strain u, its mass
-    split bilinearly over the 4 pixels around it): equal; strain 0 gives the domain back; the
-    post pixels do not move; the mass is the domain's pixel count; and the displacement is a
-    contraction (mass moves off the mould's free edges toward the posts)."""
-    masks = input_channels(_mould(6), SCENE.pixels)
-    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
-    assert np.array_equal(inputs.flow_density(masks, 0.0)[0], domain.astype(np.float32))
-    flow = inputs.flow_density(masks)[0]
-    assert flow.sum() == pytest.approx(domain.sum(), rel=1e-6)
-    u, strain = inputs.spring_displacement(masks), inputs.FLOW_STRAIN
-    H, W = domain.shape
-    brute = np.zeros((H, W))
-    for i, j in zip(*np.nonzero(domain)):
-        s = 0.0 if fixed[i, j] else strain
-        x, y = j + s * u[i, j, 0], i + s * u[i, j, 1]
-        x0, y0 = int(np.floor(x)), int(np.floor(y))
-        for dy in (0, 1):
-            for dx in (0, 1):
-                w = (x - x0 if dx else 1 - (x - x0)) * (y - y0 if dy else 1 - (y - y0))
-                brute[min(max(y0 + dy, 0), H - 1), min(max(x0 + dx, 0), W - 1)] += w
-    np.testing.assert_allclose(flow, brute, atol=1e-5)
-    assert flow[fixed].min() >= 1.0 - 1e-6  # a post keeps its own pixel's mass
-    edge = domain & ~np.pad(domain, 1)[2:, 1:-1] & ~fixed  # free pixels with no domain below
-    assert flow[edge].mean() < 0.9  # a contraction empties the free edges
-
-
-@pytest.mark.parametrize("k", range(1, 8))
-def test_flow_channel_transforms_as_a_scalar(k):
-    """The flow channel of the transformed mould is the transformed flow channel, with the
-    mechanics_flow kind's rule (a scalar after the stress pair)."""
-    from condor.surrogate.samples import apply_symmetry
-
-    masks = input_channels(_mould(6), SCENE.pixels)
-    lattice = np.zeros((2,) + masks.shape[1:], dtype=np.float32)
-    x = np.concatenate([masks.astype(np.float32), lattice, inputs.spring_stress(masks),
-                        inputs.flow_density(masks)])
-    gx, _ = apply_symmetry(k, inputs=x, input_kind="mechanics_flow")
-    moved = gx[:2].astype(np.uint8)
-    assert np.allclose(gx[4:6], inputs.spring_stress(moved), atol=1e-4)
-    assert np.allclose(gx[6:], inputs.flow_density(moved), atol=1e-4)
-
-
 def test_stress_channels_solve_each_mould_once_and_check_shapes():
     masks = input_channels(_mould(6), SCENE.pixels)
     batch = np.stack([masks, masks[:, ::-1].copy(), masks])
@@ -411,8 +368,7 @@ def test_stress_channels_solve_each_mould_once_and_check_shapes():
         inputs.spring_displacement(masks[:1])
 
 
-@pytest.mark.parametrize("kind, channels", [("mechanics", 6), ("mechanics_shear", 7),
-                                            ("mechanics_flow", 7)])
+@pytest.mark.parametrize("kind, channels", [("mechanics", 6), ("mechanics_shear", 7)])
 def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channels):
     ds = synthetic_dataset(8, 32)
     ds.attrs["scene"] = {"box": 15.625, "depth": 2.0}
@@ -430,11 +386,7 @@ def test_a_mechanics_model_reads_the_stress_of_its_masks(tmp_path, kind, channel
     # training reads the masks, the lattice and the stress the masks give
     read = model_inputs(ds, test, kind)
     assert np.array_equal(read[:, :2], masks) and np.array_equal(read[:, 2:4], lattice)
-    assert np.array_equal(read[:, 4:6], inputs.stress_channels(masks)[:, :2])
-    if kind == "mechanics_shear":
-        assert np.array_equal(read[:, 4:], inputs.stress_channels(masks, shear=True))
-    if kind == "mechanics_flow":
-        assert np.array_equal(read[:, 6:], inputs.derived_channels(masks, "flow"))
+    assert np.array_equal(read[:, 4:], inputs.stress_channels(masks, kind == "mechanics_shear"))
     # and prediction feeds the network those channels: the same as running it on them
     direct, _ = run_model(predictor.model, predictor.scaling, read, symmetrise=True,
                           n_cells=np.full(len(test), 100.0), inputs_kind=kind)

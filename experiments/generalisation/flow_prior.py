@@ -5,7 +5,7 @@ contracting spring network's displacement explains (experiments/generalisation/R
 - field_errors.csv: the leave-one-kind-out models of run.py's cache (--tag, e.g. n450_e120) on
   the kinds they held out, each field's noise-corrected squared error against the expected
   fields beside that field's noise ceiling (one simulation's), the family's mean over moulds;
-- flow_prior.csv: condor.data.inputs.flow_density at each strain of --strains against the
+- flow_prior.csv: flow_density (below; the product's at commit 346553f) at each strain of --strains against the
   expected density P of every test mould (the mean of its replicas, scaled to the same sum):
   the squared error over the field's variance, the family's median.
 
@@ -23,11 +23,39 @@ import pandas as pd
 
 import run as R  # this folder's run.py (python puts a script's folder first on its path)
 from condor.data.fields import FIELD_NAMES
-from condor.data.inputs import flow_density
+from condor.data.inputs import spring_displacement
 from condor.measures import estimators as est
 from condor.measures.metrics import normalise_predicted
 
 HERE = Path(__file__).resolve().parent
+# the strain of least error against the expected density on every family (flow_prior.csv); the
+# flow input of commit 346553f read flow_density at it (condor.data.inputs there)
+FLOW_STRAIN = 0.16
+
+
+def flow_density(masks: np.ndarray, strain: float = FLOW_STRAIN) -> np.ndarray:
+    """(2, H, W) masks -> (1, H, W) float32: the mould's and posts' pixels (mass 1 each)
+    carried by `strain` times the contracting spring network's displacement
+    (`spring_displacement`; post pixels stay) and spread bilinearly over the pixels they land
+    between: a first guess of where the cells' density goes. Its sum is the pixels' count
+    (mass that would land outside the grid is kept at the edge pixel)."""
+    masks = np.asarray(masks)
+    H, W = masks.shape[1:]
+    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
+    out = np.zeros((H, W), dtype=np.float64)
+    if not domain.any():
+        return out[None].astype(np.float32)
+    u = spring_displacement(masks) if fixed.any() else np.zeros((H, W, 2))
+    yy, xx = np.nonzero(domain)
+    move = np.where(fixed[yy, xx], 0.0, strain)
+    x = xx + move * u[yy, xx, 0]
+    y = yy + move * u[yy, xx, 1]
+    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
+    fx, fy = x - x0, y - y0
+    for dy, dx, w in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
+                      (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
+        np.add.at(out, (np.clip(y0 + dy, 0, H - 1), np.clip(x0 + dx, 0, W - 1)), w)
+    return out[None].astype(np.float32)
 
 
 def field_errors(ds, cache: Path, tag: str) -> pd.DataFrame:

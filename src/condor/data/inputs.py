@@ -40,15 +40,11 @@ import numpy as np
 from numba.extending import get_cython_function_address
 
 # TrainConfig.inputs; both: masks, then lattice; mechanics: masks, lattice, stress channels
-INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear", "mechanics_flow")
+INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear")
 LATTICE_CHANNELS = ("mobile", "fixed")
 STRESS_CHANNELS = ("stress_xx", "stress_yy")
 SHEAR_CHANNEL = "stress_xy"
-FLOW_CHANNEL = "flow"
-# The contraction strain at which the spring network's displacement carries the mould's pixels
-# where the cells' density ends up: the strain of least error against the expected density,
-# 0.16 on the pool's test moulds of every family (experiments/generalisation, "The flow input").
-FLOW_STRAIN = 0.16
+
 # (row, column) offset and stiffness of the spring network's bonds; diagonal springs at half
 # the axial stiffness make a square spring lattice elastically isotropic (Poisson ratio 1/3)
 SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
@@ -322,31 +318,6 @@ def spring_stress(masks: np.ndarray, shear: bool = False) -> np.ndarray:
     return _bond_stress(bonds, u, shear).reshape(-1, H, W).astype(np.float32)
 
 
-def flow_density(masks: np.ndarray, strain: float = FLOW_STRAIN) -> np.ndarray:
-    """(2, H, W) masks -> (1, H, W) float32: the mould's and posts' pixels (mass 1 each)
-    carried by `strain` times the contracting spring network's displacement
-    (`spring_displacement`; post pixels stay) and spread bilinearly over the pixels they land
-    between: a first guess of where the cells' density goes. Its sum is the pixels' count
-    (mass that would land outside the grid is kept at the edge pixel)."""
-    masks = np.asarray(masks)
-    H, W = masks.shape[1:]
-    domain, fixed = (masks[0] > 0) | (masks[1] > 0), masks[1] > 0
-    out = np.zeros((H, W), dtype=np.float64)
-    if not domain.any():
-        return out[None].astype(np.float32)
-    u = spring_displacement(masks) if fixed.any() else np.zeros((H, W, 2))
-    yy, xx = np.nonzero(domain)
-    move = np.where(fixed[yy, xx], 0.0, strain)
-    x = xx + move * u[yy, xx, 0]
-    y = yy + move * u[yy, xx, 1]
-    x0, y0 = np.floor(x).astype(np.int64), np.floor(y).astype(np.int64)
-    fx, fy = x - x0, y - y0
-    for dy, dx, w in ((0, 0, (1 - fx) * (1 - fy)), (0, 1, fx * (1 - fy)),
-                      (1, 0, (1 - fx) * fy), (1, 1, fx * fy)):
-        np.add.at(out, (np.clip(y0 + dy, 0, H - 1), np.clip(x0 + dx, 0, W - 1)), w)
-    return out[None].astype(np.float32)
-
-
 # Stress channels of the moulds solved last (a mould's masks and `shear` -> its channels),
 # so that a mould predicted again (design's confirmation, a user's repeated `predict`, the
 # evaluation's modes) is not solved again. At the default's 64 px an entry is 32 KiB.
@@ -381,8 +352,7 @@ def _one_blas_thread():
 # them under (condor.surrogate.samples.INPUT_VARIABLES): a function of one mould's (2, H, W)
 # masks -> (C, H, W) float32.
 DERIVED_CHANNELS = {"stress": lambda b: spring_stress(b),
-                    "stress_tensor": lambda b: spring_stress(b, shear=True),
-                    "flow": lambda b: flow_density(b)}
+                    "stress_tensor": lambda b: spring_stress(b, shear=True)}
 
 
 def stress_channels(masks: np.ndarray, shear: bool = False, threads: int | None = None) -> np.ndarray:

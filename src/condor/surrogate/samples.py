@@ -26,16 +26,14 @@ PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller t
 # two channels each, in this order.
 INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice"),
                    "mechanics": ("inputs", "lattice", "stress"),
-                   "mechanics_shear": ("inputs", "lattice", "stress_tensor"),
-                   "mechanics_flow": ("inputs", "lattice", "stress", "flow")}
+                   "mechanics_shear": ("inputs", "lattice", "stress_tensor")}
 # Inputs computed from a store variable, not stored: condor.data.inputs.DERIVED_CHANNELS from
-# the masks (stress: sigma_xx, sigma_yy; stress_tensor: and sigma_xy; flow: the carried density).
-DERIVED_INPUTS = {"stress": "inputs", "stress_tensor": "inputs", "flow": "inputs"}
-VARIABLE_CHANNELS = {"inputs": 2, "lattice": 2, "stress": 2, "stress_tensor": 3, "flow": 1}
+# the masks (stress: sigma_xx, sigma_yy; stress_tensor: and sigma_xy).
+DERIVED_INPUTS = {"stress": "inputs", "stress_tensor": "inputs"}
+VARIABLE_CHANNELS = {"inputs": 2, "lattice": 2, "stress": 2, "stress_tensor": 3}
 # Input channel order after x <-> y, per kind whose channels are not all scalars: the stress
 # channels sigma_xx, sigma_yy swap (sigma_xy stays).
-_INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4), "mechanics_shear": (0, 1, 2, 3, 5, 4, 6),
-                      "mechanics_flow": (0, 1, 2, 3, 5, 4, 6)}
+_INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4), "mechanics_shear": (0, 1, 2, 3, 5, 4, 6)}
 # Input channels that change sign under each mirror: sigma_xy.
 _INPUTS_ODD = {"mechanics_shear": (6,)}
 
@@ -123,7 +121,7 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     """Model inputs (..., C, H, W) of `kind` -> (..., C, size, size): masks by
     resample_masks; lattice channels (cells per pixel in column units, a density) by
     replication up, block means down."""
-    if kind in ("both", "mechanics", "mechanics_shear", "mechanics_flow"):  # masks, then the rest
+    if kind in ("both", "mechanics", "mechanics_shear"):  # masks, then lattice, stress
         return np.concatenate([resample_masks(inputs[..., :2, :, :], size),
                                resample_inputs(inputs[..., 2:, :, :], size, "lattice")], axis=-3)
     if kind == "mask":
