@@ -164,3 +164,28 @@ def test_no_function_of_the_cli_is_over_the_line_bar():
             if isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef))
             and node.end_lineno - node.lineno + 1 > CLI_FUNCTION_LINES]
     assert not long, f"functions of cli.py over {CLI_FUNCTION_LINES} lines:\n" + "\n".join(long)
+
+
+def test_a_config_check_imports_no_torch_and_still_checks_the_surrogate():
+    """What every `snakemake` start does (the Snakefile's Config.from_dict, which checks the
+    surrogate's settings and the design objective) imports neither torch nor cma: torch alone
+    costs about a second a start (condor.surrogate.settings). The check is still made: a bad
+    surrogate setting is refused there."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from condor.config import Config, ConfigError\n"
+            "Config.from_dict({'scene': 'tiny'})\n"
+            "try:\n"
+            "    Config.from_dict({'scene': 'tiny', 'surrogate': {'models': {'unet': "
+            "{'preset': 'unet', 'head': 'nope'}}}})\n"
+            "    print('accepted')\n"
+            "except ConfigError as err:\n"
+            "    print('refused:', err)\n"
+            "print(sorted(m for m in ('torch', 'cma', 'matplotlib') if m in sys.modules))\n")
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert done.returncode == 0, done.stderr[-2000:]
+    lines = done.stdout.splitlines()
+    assert lines[0].startswith("refused:") and "head" in lines[0]
+    assert lines[-1] == "[]"

@@ -247,20 +247,19 @@ def test_study_moulds_take_paper_test_moulds_first_then_lab_ones(caplog):
     it holds fewer than report.moulds (a run whose test set is all lab still has its studies),
     said in the log."""
     from condor.config import Config, ConfigError
-    from condor.stages.studies import study_moulds
 
     def config(test, lab_test, moulds):
         return Config.from_dict({"scene": "tiny", "n_moulds": 16, "split": {
             "test": test, "lab_test": lab_test}, "report": {"moulds": moulds}})
 
     mixed = config(6, 2, 3)
-    assert study_moulds(mixed) == mixed.test_moulds("paper")[:3]
+    assert mixed.study_moulds() == mixed.test_moulds("paper")[:3]
     all_lab = config(3, 3, 3)
     with caplog.at_level("WARNING", logger="condor"):
-        chosen = study_moulds(all_lab)
+        chosen = all_lab.study_moulds()
     assert chosen == all_lab.test_moulds("lab") and len(chosen) == 3
     assert "paper test set holds 0" in caplog.text
     topped = config(3, 2, 3)
-    assert study_moulds(topped) == topped.test_moulds("paper") + topped.test_moulds("lab")
+    assert topped.study_moulds() == topped.test_moulds("paper") + topped.test_moulds("lab")
     with pytest.raises(ConfigError, match="config key report/moulds: 3, but the test set holds 2"):
-        study_moulds(config(2, 2, 3))  # a report never measures fewer moulds than it says
+        config(2, 2, 3).study_moulds()  # a report never measures fewer moulds than it says

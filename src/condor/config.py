@@ -124,8 +124,8 @@ class Config:
     @classmethod
     def from_dict(cls, config: Mapping, check_surrogate: bool = True) -> "Config":
         """Validate a config dict (defaults filled) and freeze it; ConfigError names the key.
-        `check_surrogate=False` skips building the surrogate variants (it imports torch), for
-        the jobs of a workflow whose config was checked in full when it started."""
+        `check_surrogate=False` skips building the surrogate variants and parsing the design
+        objective, for the jobs of a workflow whose config was checked in full when it started."""
         filled = json.loads(json.dumps(_plain(config)))  # a copy: the caller's dict is kept
         schema = load_schema()
         _fill_defaults(filled, schema)
@@ -224,6 +224,34 @@ class Config:
             raise ValueError(f"unknown test set {source!r}; choose one of {TEST_SETS}")
         sources = self.sources()
         return [i for i in test if (sources[i] == PAPER) == (source == "paper")]
+
+    def study_moulds(self) -> list[int]:
+        """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
+        of the paper test set (the generator's moulds, as the paper reference's), then of the lab
+        test set when the paper test set holds fewer (said in the log). ConfigError, naming the
+        key, when the whole test set holds fewer, or `report.ladder_moulds` (the ladder's, the
+        first of them) asks for more: a report never measures fewer moulds than its config says."""
+        import logging
+
+        paper, lab = self.test_moulds("paper"), self.test_moulds("lab")
+        report = self.report
+        wanted = report["moulds"]
+        if wanted > len(paper) + len(lab):
+            raise ConfigError(
+                f"config key report/moulds: {wanted}, but the test set holds {len(paper) + len(lab)} "
+                f"moulds (split/test {self.split['test']}); lower report/moulds to "
+                f"{len(paper) + len(lab)} or less, or raise split/test")
+        if report["ladder_moulds"] > wanted:
+            raise ConfigError(
+                f"config key report/ladder_moulds: {report['ladder_moulds']}, but the ladder runs on "
+                f"the accuracy study's moulds, report/moulds = {wanted}: lower it")
+        chosen = (paper + lab)[:wanted]
+        if wanted > len(paper):
+            logging.getLogger("condor").warning(
+                "report.moulds is %d, but the paper test set holds %d moulds: the accuracy study "
+                "sweeps %d paper and %d lab test moulds (raise split.test, or lower "
+                "split.lab_test)", wanted, len(paper), len(paper), wanted - len(paper))
+        return chosen
 
     def solver(self) -> tuple[str, float]:
         """The simulation's solver and budget, None resolved to the simulator's defaults at
@@ -359,7 +387,7 @@ class Config:
                 f"{MAX_FIELD_BYTES / 2**30:g} GiB (condor.config.MAX_FIELD_BYTES)")
 
     def _check_surrogate(self) -> None:
-        # Imported here: torch (and cma) cost seconds to import; a workflow job skips this.
+        # Imported here: a workflow job skips this (neither imports torch: a test says so).
         from condor.surrogate.variants import train_config, workflow_variants
 
         try:

@@ -2,10 +2,9 @@
 # each study mould (one job each), every method against the expected fields (the accuracy
 # tables and the cost-against-error chart), the anneal ladder, the scene convergence study and
 # the stability cases.
-from condor.stages.studies import study_moulds
 
 try:
-    STUDY_MOULDS = study_moulds(CONFIG)
+    STUDY_MOULDS = CONFIG.study_moulds()
 except ConfigError as err:
     sys.exit(f"condor: {err}")  # one line, no traceback, nothing run
 STUDIES = f"{R}/studies"

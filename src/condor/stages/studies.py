@@ -22,7 +22,7 @@ import pandas as pd
 import torch
 
 from condor import plots
-from condor.config import Config, ConfigError
+from condor.config import Config
 from condor.studies.stability import run_cases
 from condor.moulds.mould import input_channels
 from condor.model.simulate import FAITHFUL_SOLVER
@@ -41,32 +41,6 @@ from condor.surrogate.samples import dataset_pixel_size, usable_samples
 from condor.surrogate.predict import Predictor
 
 log = logging.getLogger("condor")
-
-
-def study_moulds(config: Config) -> list[int]:
-    """The test moulds the accuracy study and the sweeps use: the first `report.moulds` by id
-    of the paper test set (the generator's moulds, as the paper reference's), then of the lab
-    test set when the paper test set holds fewer (said in the log). ConfigError, naming the
-    key, when the whole test set holds fewer, or `report.ladder_moulds` (the ladder's, the
-    first of them) asks for more: a report never measures fewer moulds than its config says."""
-    paper, lab = config.test_moulds("paper"), config.test_moulds("lab")
-    report = config.report
-    wanted = report["moulds"]
-    if wanted > len(paper) + len(lab):
-        raise ConfigError(
-            f"config key report/moulds: {wanted}, but the test set holds {len(paper) + len(lab)} "
-            f"moulds (split/test {config.split['test']}); lower report/moulds to "
-            f"{len(paper) + len(lab)} or less, or raise split/test")
-    if report["ladder_moulds"] > wanted:
-        raise ConfigError(
-            f"config key report/ladder_moulds: {report['ladder_moulds']}, but the ladder runs on "
-            f"the accuracy study's moulds, report/moulds = {wanted}: lower it")
-    chosen = (paper + lab)[:wanted]
-    if wanted > len(paper):
-        log.warning("report.moulds is %d, but the paper test set holds %d moulds: the accuracy "
-                    "study sweeps %d paper and %d lab test moulds (raise split.test, or lower "
-                    "split.lab_test)", wanted, len(paper), len(paper), wanted - len(paper))
-    return chosen
 
 
 def mould_by_id(moulds_jsons, mould_id: int):
@@ -163,7 +137,7 @@ def accuracy(config: Config, store, sweep_npzs, checkpoints: dict, out_accuracy,
     interval about 2x against the study's 12). out_lab: {"accuracy", "statistics",
     "calibration", "families"} paths: the same tables on the lab test set, and each surrogate
     family by family (condor.studies.families); empty tables when the config has none."""
-    ensemble = reference_ensemble(store, study_moulds(config))
+    ensemble = reference_ensemble(store, config.study_moulds())
     log.info("reference ensemble: %d test moulds x %s", len(ensemble.moulds),
              ensemble.describe_replicas())
     predictors = _predictors(store, checkpoints)
@@ -252,7 +226,7 @@ def spread_maps(ensemble, calibration: list, out_png, n: int = 3) -> None:
 def ladder(config: Config, store, moulds_jsons, out_csv) -> pd.DataFrame:
     """The anneal ladder on the first `report.ladder_moulds` study moulds."""
     report = config.report
-    ensemble = reference_ensemble(store, study_moulds(config)[: report["ladder_moulds"]])
+    ensemble = reference_ensemble(store, config.study_moulds()[: report["ladder_moulds"]])
     moulds = [mould_by_id(moulds_jsons, m) for m in ensemble.moulds]
     table = ladder_study(ensemble, moulds, config.scene, report["ladder_budgets"],
                          report["ladder_seeds"], config.seed, log=log.info)

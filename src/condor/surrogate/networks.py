@@ -21,21 +21,17 @@ parameter, `set_prediction_mode(model, mode)`, with three modes:
 
 from __future__ import annotations
 
-import math
 from contextlib import contextmanager
-from dataclasses import asdict, dataclass
 
 import torch
 from torch import nn
 from torch.nn import functional as F
 
 from .modes import PREDICTION_MODES
+# The networks' shapes (torch-free, condor.surrogate.settings), exported here too, as before
+from .settings import (OUTPUT_ACTIVATIONS, PAPER_SIZE, UPSAMPLE_MODES,  # noqa: F401
+                       PatchConfig, UNetConfig)
 
-UPSAMPLE_MODES = ("transpose", "resize", "bilinear")
-OUTPUT_ACTIVATIONS = ("tanh", "linear")
-PAPER_SIZE = 256
-PAPER_GENERATOR_PARAMETERS = 54_435_080  # Appendix table, BN running statistics included
-PAPER_DISCRIMINATOR_PARAMETERS = 2_774_529
 INIT_STD = 0.02
 
 
@@ -59,93 +55,6 @@ class TFBatchNorm2d(nn.BatchNorm2d):
         scale = self.weight * torch.rsqrt(var + self.eps)
         shift = self.bias - mean * scale
         return x * scale[None, :, None, None] + shift[None, :, None, None]
-
-
-@dataclass(frozen=True)
-class UNetConfig:
-    """A pix2pix-style U-Net generator.
-
-    size: input side in pixels (must be divisible by 2**depth); base: channels of the first
-    level; depth: number of stride-2 levels (log2(size) reaches a 1x1 bottleneck, as the
-    paper); max_width: channel cap; n_dropout: decoder blocks (from the bottleneck) with dropout;
-    blocks: residual 3x3 convolution blocks after each level's resampling convolution, in the
-    encoder and the decoder (0: the paper's one convolution per level).
-    """
-
-    in_channels: int = 2
-    out_channels: int = 8
-    size: int = PAPER_SIZE
-    base: int = 64
-    depth: int = 8
-    max_width: int = 512
-    n_dropout: int = 3
-    dropout: float = 0.5
-    leaky_slope: float = 0.3
-    upsample: str = "transpose"
-    output: str = "tanh"
-    detached_outputs: int = 0
-    blocks: int = 0
-
-    def __post_init__(self):
-        if self.upsample not in UPSAMPLE_MODES:
-            raise ValueError(f"UNetConfig.upsample {self.upsample!r} is not one of {UPSAMPLE_MODES}")
-        if self.output not in OUTPUT_ACTIVATIONS:
-            raise ValueError(f"UNetConfig.output {self.output!r} is not one of "
-                             f"{OUTPUT_ACTIVATIONS}")
-        for name in ("in_channels", "out_channels", "size", "base", "depth", "max_width"):
-            if getattr(self, name) < 1:
-                raise ValueError(f"UNetConfig.{name} must be >= 1, got {getattr(self, name)}")
-        if self.blocks < 0:
-            raise ValueError(f"UNetConfig.blocks must be >= 0, got {self.blocks}")
-        if not 0 <= self.detached_outputs <= self.out_channels:
-            raise ValueError(f"UNetConfig.detached_outputs={self.detached_outputs} is not in "
-                             f"[0, out_channels={self.out_channels}]")
-        if self.size % (2 ** self.depth):
-            raise ValueError(f"UNetConfig.size={self.size} is not divisible by "
-                             f"2**depth={2 ** self.depth}")
-        if not 0.0 <= self.dropout < 1.0:
-            raise ValueError(f"UNetConfig.dropout must be in [0, 1), got {self.dropout}")
-
-    @classmethod
-    def paper(cls) -> "UNetConfig":
-        """The Appendix generator: 2 -> 8 channels at 256 px, 8 levels, widths 64..512."""
-        return cls()
-
-    @classmethod
-    def for_size(cls, size: int, base: int = 32, depth: int | None = None,
-                 max_width: int = 256, **kw) -> "UNetConfig":
-        """A right-sized U-Net: `depth` defaults to reaching a 4x4 bottleneck."""
-        if depth is None:
-            depth = max(1, int(math.log2(size)) - 2)
-        return cls(size=size, base=base, depth=depth, max_width=max_width, **kw)
-
-    def widths(self) -> list[int]:
-        return [min(self.base * 2 ** i, self.max_width) for i in range(self.depth)]
-
-    def to_dict(self) -> dict:
-        return asdict(self)
-
-
-@dataclass(frozen=True)
-class PatchConfig:
-    """A PatchGAN discriminator: `n_down` stride-2 convolutions, then two stride-1
-    convolutions behind zero padding. n_down=3 at 256 px is the paper's 70x70, 30x30 output."""
-
-    in_channels: int = 10
-    base: int = 64
-    n_down: int = 3
-    max_width: int = 512
-    leaky_slope: float = 0.3
-
-    def __post_init__(self):
-        if self.n_down < 1 or self.base < 1 or self.in_channels < 1:
-            raise ValueError(f"invalid PatchConfig {self}")
-
-    def output_side(self, size: int) -> int:
-        return size // 2 ** self.n_down - 2
-
-    def to_dict(self) -> dict:
-        return asdict(self)
 
 
 def _down(c_in: int, c_out: int, norm: bool, slope: float) -> nn.Sequential:

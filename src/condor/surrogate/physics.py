@@ -59,8 +59,9 @@ import torch
 from torch.nn import functional as F
 
 from .samples import FIELD_NAMES, PAIRED_FIELDS
+from .settings import PHYSICS_OUTPUTS, check_field_weights  # noqa: F401  (check_: re-exported)
 
-N_OUTPUTS = 16  # 8 channels for the fields, 8 for their spread
+N_OUTPUTS = PHYSICS_OUTPUTS  # 8 channels for the fields, 8 for their spread
 SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL bounded)
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
 SUM_FLOOR = 0.05  # tension per cell, in units of tau_0, below which sum(T)'s error is absolute
@@ -238,21 +239,6 @@ class PhysicsHead:
         self.spread_factor = self.spread_factor * np.where(np.isfinite(factor) & (factor > 0),
                                                            factor, 1.0)
         return self.spread_factor
-
-
-def check_field_weights(weights) -> np.ndarray:
-    """`weights` as 8 floats normalised to mean 1; ValueError unless they are finite, >= 0,
-    not all 0, and equal within each transpose pair (PAIRED_FIELDS)."""
-    w = np.asarray(weights, dtype=np.float64).reshape(-1)
-    if w.shape != (len(FIELD_NAMES),) or not np.all(np.isfinite(w)) or np.any(w < 0) \
-            or w.sum() <= 0:
-        raise ValueError(f"field_weights must be {len(FIELD_NAMES)} finite values >= 0, not all "
-                         f"0 (one per field of {FIELD_NAMES}), got {list(weights)}")
-    for a, b in PAIRED_FIELDS:
-        if w[_IDX[a]] != w[_IDX[b]]:
-            raise ValueError(f"field_weights of {a} and {b} must be equal (a transpose swaps "
-                             f"them), got {w[_IDX[a]]} and {w[_IDX[b]]}")
-    return w / w.mean()
 
 
 def area_threshold_per_pixel(pixel_size: float) -> float:

@@ -22,15 +22,8 @@ from condor.data.store import CHANNELS as CHANNEL_NAMES
 from condor.data.store import SPLITS  # noqa: F401
 
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
-# What a model reads (TrainConfig.inputs, condor.data.inputs): the store variables of each kind,
-# two channels each, in this order.
-INPUT_VARIABLES = {"mask": ("inputs",), "lattice": ("lattice",), "both": ("inputs", "lattice"),
-                   "mechanics": ("inputs", "lattice", "stress"),
-                   "mechanics_shear": ("inputs", "lattice", "stress_tensor")}
-# Inputs computed from a store variable, not stored: condor.data.inputs.DERIVED_CHANNELS from
-# the masks (stress: sigma_xx, sigma_yy; stress_tensor: and sigma_xy).
-DERIVED_INPUTS = {"stress": "inputs", "stress_tensor": "inputs"}
-VARIABLE_CHANNELS = {"inputs": 2, "lattice": 2, "stress": 2, "stress_tensor": 3}
+from .settings import (DERIVED_INPUTS, INPUT_VARIABLES, VARIABLE_CHANNELS,  # noqa: E402,F401
+                       n_input_channels)
 # Input channel order after x <-> y, per kind whose channels are not all scalars: the stress
 # channels sigma_xx, sigma_yy swap (sigma_xy stays).
 _INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4), "mechanics_shear": (0, 1, 2, 3, 5, 4, 6)}
@@ -134,11 +127,6 @@ def resample_inputs(inputs: np.ndarray, size: int, kind: str = "mask") -> np.nda
     return _block(inputs, f).mean(axis=(-3, -1)).astype(inputs.dtype)
 
 
-def n_input_channels(kind: str) -> int:
-    """Channels a network of inputs `kind` reads (the sum over its INPUT_VARIABLES)."""
-    return sum(VARIABLE_CHANNELS[name] for name in INPUT_VARIABLES[kind])
-
-
 def check_input_variables(ds, kind: str) -> None:
     """ValueError for an unknown kind, DataError when `ds` lacks a variable `kind` reads."""
     if kind not in INPUT_VARIABLES:
@@ -192,7 +180,7 @@ _ODD = {MIRROR_X: ("SxSy", "SxSz"), MIRROR_Y: ("SxSy", "SySz"), FLIP_Z: ("SxSz",
 # Field order after x <-> y: Sx2 <-> Sy2, SxSz <-> SySz.
 _TRANSPOSED = ("P", "T", "Sy2", "Sx2", "Sz2", "SxSy", "SySz", "SxSz")
 ODD_FIELDS = ("SxSy", "SxSz", "SySz")  # odd under some reflection: scaling must be symmetric
-PAIRED_FIELDS = (("Sx2", "Sy2"), ("SxSz", "SySz"))  # swapped by the transpose: one range
+from .settings import PAIRED_FIELDS  # noqa: E402  (swapped by the transpose: one range)
 
 
 def _field_signs(generator: int) -> np.ndarray:

@@ -17,8 +17,7 @@ from __future__ import annotations
 import re
 from types import MappingProxyType
 
-from .networks import UNetConfig
-from .train import NETWORK_KINDS, TrainConfig
+from .settings import NETWORK_KINDS, TrainConfig, UNetConfig
 
 UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample", "blocks")
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "betas", "lam", "adversarial_target", "seed",
