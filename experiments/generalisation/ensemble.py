@@ -19,6 +19,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from condor.files import write_text
+
 import run as R  # this folder's run.py (python puts a script's folder first on its path)
 
 
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
     print(table.assign(ratio=ratio.round(3))[["held_out", "family", "ratio", "error_hi",
                                               "noise_ceiling", "tension_bias"]].to_string())
     if a.out:
-        table.to_csv(a.out, index=False, float_format="%.5g")
+        write_text(a.out, table.to_csv(index=False, float_format="%.5g"))
     return 0
 
 

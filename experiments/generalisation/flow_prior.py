@@ -23,6 +23,7 @@ import pandas as pd
 
 import run as R  # this folder's run.py (python puts a script's folder first on its path)
 from condor.data.fields import FIELD_NAMES
+from condor.files import write_text
 from condor.data.inputs import spring_displacement
 from condor.measures import estimators as est
 from condor.measures.metrics import normalise_predicted
@@ -112,11 +113,11 @@ def main(argv=None) -> int:
     a = ap.parse_args(argv)
     ds = R.open_store(a.pool)
     errors = field_errors(ds, a.cache, a.tag)
-    errors.to_csv(a.out / "field_errors.csv", index=False, float_format="%.5g")
+    write_text(a.out / "field_errors.csv", errors.to_csv(index=False, float_format="%.5g"))
     print(errors.assign(ratio=errors["squared_error"] / errors["noise_ceiling"])
           .pivot(index="family", columns="field", values="ratio").round(2).to_string())
     prior = flow_prior(ds, a.strains)
-    prior.to_csv(a.out / "flow_prior.csv", index=False, float_format="%.5g")
+    write_text(a.out / "flow_prior.csv", prior.to_csv(index=False, float_format="%.5g"))
     print(prior.pivot(index="family", columns="strain", values="relative_error").round(3)
           .to_string())
     return 0

@@ -24,6 +24,8 @@ import numpy as np
 import pandas as pd
 
 from condor.data.seeds import replica_seed, study_seed
+from condor.files import write_text
+from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.model.simulate import default_budget, simulate, warm_up
 from condor.moulds.sources import make_mould
@@ -42,7 +44,8 @@ def parse_mould(token: str) -> tuple[str, int]:
 
 
 def one_run(job) -> tuple[str, str]:
-    """Run (or find) one job: (kind, scene name, seed, family, id, k, solver or budget)."""
+    """Run (or find) one job: (kind, scene name, seed, family, id, k, solver or budget, cache
+    folder) -> (its file, its status)."""
     kind, scene_name, seed, family, mould_id, k, what, cache = job
     path = Path(cache) / f"{scene_name}_s{seed}" / f"{family}_m{mould_id}" / f"{kind}_{what}_r{k}.npz"
     if path.exists():
@@ -105,19 +108,14 @@ def main(argv=None) -> int:
                         for k in range(a.seeds)] for f, m in moulds}
 
         def row(keys, mould="all"):
-            fields = [[r[0] for r in got[key] if r[3] == "ok"] for key in keys]
-            refs = [[r[0] for r in ref[key] if r[3] == "ok"] for key in keys]
-            width = max(map(len, fields)), max(map(len, refs))
-            pad = lambda runs, n: np.stack([np.stack(x + [np.full_like(x[0], np.nan)] * (n - len(x)))  # noqa: E731
-                                            for x in runs])
-            energy = [[r[1] for r in got[key] if r[3] == "ok"] for key in keys]
-            ref_energy = [[r[1] for r in ref[key] if r[3] == "ok"] for key in keys]
-            evaluations = [[r[2] for r in got[key] if r[3] == "ok"] for key in keys]
-            padded = lambda v, n: np.array([x + [np.nan] * (n - len(x)) for x in v])  # noqa: E731
-            out = fidelity_row(solver, a.scene, label, pad(fields, width[0]), pad(refs, width[1]),
-                               evaluations=padded(evaluations, width[0]),
-                               energy=padded(energy, width[0]),
-                               ref_energy=padded(ref_energy, width[1]))
+            mine = [[r for r in got[key] if r[3] == "ok"] for key in keys]
+            theirs = [[r for r in ref[key] if r[3] == "ok"] for key in keys]
+            out = fidelity_row(solver, a.scene, label,
+                               pad_replicas([[r[0] for r in runs] for runs in mine]),
+                               pad_replicas([[r[0] for r in runs] for runs in theirs]),
+                               evaluations=pad_replicas([[r[2] for r in runs] for runs in mine]),
+                               energy=pad_replicas([[r[1] for r in runs] for runs in mine]),
+                               ref_energy=pad_replicas([[r[1] for r in runs] for runs in theirs]))
             return {"mould": mould, **out}
 
         rows.append(row(list(got)))
@@ -127,7 +125,7 @@ def main(argv=None) -> int:
             "evaluations_per_mould", "sz2_difference", "energy_difference_pct"]
     print(table[cols].round(4).to_string(index=False))
     if a.out:
-        table.to_csv(a.out, index=False, float_format="%.5g")
+        write_text(a.out, table.to_csv(index=False, float_format="%.5g"))
     return 0
 
 

@@ -15,6 +15,7 @@ another one (condor.folder).
 from __future__ import annotations
 
 import json
+import logging
 import math
 from dataclasses import dataclass
 from pathlib import Path
@@ -38,6 +39,7 @@ from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.recipes import MIN_REPLICAS
 
+log = logging.getLogger("condor")
 TEST_SETS = ("paper", "lab")  # the test moulds of the generator, and of the lab families
 
 SCHEMA_PATH = Path(__file__).with_name("config.schema.yaml")
@@ -231,8 +233,6 @@ class Config:
         test set when the paper test set holds fewer (said in the log). ConfigError, naming the
         key, when the whole test set holds fewer, or `report.ladder_moulds` (the ladder's, the
         first of them) asks for more: a report never measures fewer moulds than its config says."""
-        import logging
-
         paper, lab = self.test_moulds("paper"), self.test_moulds("lab")
         report = self.report
         wanted = report["moulds"]
@@ -247,7 +247,7 @@ class Config:
                 f"the accuracy study's moulds, report/moulds = {wanted}: lower it")
         chosen = (paper + lab)[:wanted]
         if wanted > len(paper):
-            logging.getLogger("condor").warning(
+            log.warning(
                 "report.moulds is %d, but the paper test set holds %d moulds: the accuracy study "
                 "sweeps %d paper and %d lab test moulds (raise split.test, or lower "
                 "split.lab_test)", wanted, len(paper), len(paper), wanted - len(paper))

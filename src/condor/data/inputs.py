@@ -44,7 +44,6 @@ INPUT_KINDS = ("mask", "lattice", "both", "mechanics", "mechanics_shear")
 LATTICE_CHANNELS = ("mobile", "fixed")
 STRESS_CHANNELS = ("stress_xx", "stress_yy")
 SHEAR_CHANNEL = "stress_xy"
-
 # (row, column) offset and stiffness of the spring network's bonds; diagonal springs at half
 # the axial stiffness make a square spring lattice elastically isotropic (Poisson ratio 1/3)
 SPRING_BONDS = (((0, 1), 1.0), ((1, 0), 1.0), ((1, 1), 0.5), ((1, -1), 0.5))
@@ -350,7 +349,7 @@ def _one_blas_thread():
 
 # The channels derived from a mould's masks alone, by the store-variable name a network reads
 # them under (condor.surrogate.samples.INPUT_VARIABLES): a function of one mould's (2, H, W)
-# masks -> (C, H, W) float32.
+# masks -> (C, H, W) float32 (looked up at call time, so that spring_stress can be replaced).
 DERIVED_CHANNELS = {"stress": lambda b: spring_stress(b),
                     "stress_tensor": lambda b: spring_stress(b, shear=True)}
 

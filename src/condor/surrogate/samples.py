@@ -21,9 +21,12 @@ from condor.data.inputs import derived_channels
 from condor.data.store import CHANNELS as CHANNEL_NAMES
 from condor.data.store import SPLITS  # noqa: F401
 
+# What a model reads, and the field pairs the transpose swaps (one range each): their home is
+# settings.py (no torch); exported here too, as before
+from .settings import (DERIVED_INPUTS, INPUT_VARIABLES, PAIRED_FIELDS,  # noqa: F401
+                       VARIABLE_CHANNELS, n_input_channels)
+
 PRELOAD_BYTES = 512 * 2 ** 20  # hold a selection in memory when it is smaller than this
-from .settings import (DERIVED_INPUTS, INPUT_VARIABLES, VARIABLE_CHANNELS,  # noqa: E402,F401
-                       n_input_channels)
 # Input channel order after x <-> y, per kind whose channels are not all scalars: the stress
 # channels sigma_xx, sigma_yy swap (sigma_xy stays).
 _INPUTS_TRANSPOSED = {"mechanics": (0, 1, 2, 3, 5, 4), "mechanics_shear": (0, 1, 2, 3, 5, 4, 6)}
@@ -180,7 +183,6 @@ _ODD = {MIRROR_X: ("SxSy", "SxSz"), MIRROR_Y: ("SxSy", "SySz"), FLIP_Z: ("SxSz",
 # Field order after x <-> y: Sx2 <-> Sy2, SxSz <-> SySz.
 _TRANSPOSED = ("P", "T", "Sy2", "Sx2", "Sz2", "SxSy", "SySz", "SxSz")
 ODD_FIELDS = ("SxSy", "SxSz", "SySz")  # odd under some reflection: scaling must be symmetric
-from .settings import PAIRED_FIELDS  # noqa: E402  (swapped by the transpose: one range)
 
 
 def _field_signs(generator: int) -> np.ndarray:
