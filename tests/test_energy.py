@@ -67,6 +67,53 @@ def test_gradient_equals_finite_differences(perturbed):
                 assert abs(fd - grad[cell, a]) < 1e-6 * max(1.0, abs(fd))
 
 
+def plain_gradient(pos, ori, lat, delta=DELTA):
+    """energy_gradient as one numpy pass over the bonds: the same per-bond expressions, then
+    every bond's j end added and every i end subtracted, cell by cell in bond order."""
+    i, j, kbar, l0 = lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest
+    l = pos[j] - pos[i]
+    d = np.sqrt(l[:, 0] * l[:, 0] + l[:, 1] * l[:, 1] + l[:, 2] * l[:, 2])
+    inv = 1.0 / d
+    ci = (l[:, 0] * ori[i, 0] + l[:, 1] * ori[i, 1] + l[:, 2] * ori[i, 2]) * inv
+    cj = (l[:, 0] * ori[j, 0] + l[:, 1] * ori[j, 1] + l[:, 2] * ori[j, 2]) * inv
+    stretch = d - l0 * (1.0 - 0.5 * delta * (2.0 - ci * ci - cj * cj))
+    g = kbar * stretch
+    a = l0 * delta * inv
+    coef_u, coef_i, coef_j = g * (1.0 + a * (ci * ci + cj * cj)), -g * a * ci, -g * a * cj
+    u = l * inv[:, None]
+    f = coef_u[:, None] * u + coef_i[:, None] * ori[i] + coef_j[:, None] * ori[j]
+    gp, go = np.zeros_like(pos), np.zeros_like(ori)
+    np.add.at(gp, j, f)
+    np.subtract.at(gp, i, f)
+    np.add.at(go, j, (-g * l0 * delta * cj)[:, None] * u)
+    np.add.at(go, i, (-g * l0 * delta * ci)[:, None] * u)
+    e = 0.0
+    for eb in 0.5 * kbar * stretch * stretch:
+        e += eb
+    return e, gp, go
+
+
+def test_blocked_gradient_is_the_plain_loop_to_the_bit():
+    # several blocks of energy_gradient and a partial last one; the lattice's bond order
+    lat = build_lattice(box(0, 0, 9, 7), np.array([[3.0, 3.0, 0.5]]), 3.0)
+    assert lat.n_bonds > 10 * 128 and lat.n_bonds % 128
+    assert np.all(np.diff(lat.bond_i) >= 0) and np.all(lat.bond_j > lat.bond_i)
+    rng = np.random.default_rng([0, 9])
+    pos = lat.positions + rng.normal(scale=0.1, size=lat.positions.shape)
+    ori = random_orientations(lat.n_cells, rng)
+    gp, go = np.zeros_like(pos), np.zeros_like(ori)
+    e = energy_gradient(pos, ori, *args(lat), DELTA, gp, go)
+    e_ref, gp_ref, go_ref = plain_gradient(pos, ori, lat)
+    assert e == e_ref and np.array_equal(gp, gp_ref) and np.array_equal(go, go_ref)
+    # bonds in any other order: the same sums up to round-off
+    order = rng.permutation(lat.n_bonds)
+    gp2, go2 = np.zeros_like(pos), np.zeros_like(ori)
+    e2 = energy_gradient(pos, ori, lat.bond_i[order], lat.bond_j[order], lat.bond_kbar[order],
+                         lat.bond_rest[order], DELTA, gp2, go2)
+    assert e2 == pytest.approx(e, rel=1e-12)
+    assert np.allclose(gp2, gp, rtol=0, atol=1e-12) and np.allclose(go2, go, rtol=0, atol=1e-12)
+
+
 def test_tangent_gradient_is_derivative_along_the_sphere(perturbed):
     lat, pos, ori = perturbed
     gp, go = np.zeros_like(pos), np.zeros_like(ori)

@@ -103,8 +103,8 @@ class Lattice:
 
     positions: np.ndarray  # (N, 3) float64 initial (lattice) positions
     fixed: np.ndarray  # (N,) bool, post cells inside tether disks
-    bond_i: np.ndarray  # (B,) int64, first cell of each bond
-    bond_j: np.ndarray  # (B,) int64, second cell
+    bond_i: np.ndarray  # (B,) int64, first cell of each bond, ascending
+    bond_j: np.ndarray  # (B,) int64, second cell, > bond_i (energy_gradient sums in this order)
     bond_kbar: np.ndarray  # (B,) float64 dimensionless spring constant
     bond_rest: np.ndarray  # (B,) float64 lattice distance l0_ij
     bond_shell: np.ndarray  # (B,) int8 shell 0-3
