@@ -399,3 +399,16 @@ def test_relaxed_anneal_is_deterministic_and_counts_its_relaxations(mould):
     args = (lat.bond_i, lat.bond_j, lat.bond_kbar, lat.bond_rest, DELTA)
     assert a[2]["anneal_running_energy"] == pytest.approx(total_energy(a[0], a[1], *args),
                                                           rel=1e-9)
+
+
+def test_relaxed_anneal_takes_a_relaxation_budget_a_segment(mould):
+    from condor.model.anneal import relaxed_anneal
+    lat, ori = mould
+    same = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, [10] * 5)
+    scalar = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, 10)
+    assert np.array_equal(same[0], scalar[0]) and np.array_equal(same[1], scalar[1])
+    front = relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, [30, 5, 5, 5, 0])
+    assert front[2]["relax_evaluations"] == 45  # ftol 0: every relaxation spends its budget
+    assert not np.array_equal(front[0], scalar[0])
+    with pytest.raises(ValueError, match="one a segment"):
+        relaxed_anneal(lat, lat.positions, ori, [4, 2], 0.03, 0.001, 5, 4, [30, 5])

@@ -12,6 +12,8 @@ replica seeds of the mould, then L-BFGS to the dataset's tolerance):
                            Tlo, each followed by R evaluations of L-BFGS on the positions
   relax:Thi:Tlo:S:W:R:F    the same, the final L-BFGS to a largest residual force F (kappa0 l0)
                            instead of the dataset's tolerance
+  relax:Thi:Tlo:S:W:R0-R1  R ramped linearly from R0 (the first segment) to R1 (the last)
+  relax:Thi:Tlo:S:W:F+R    F evaluations after the first segment, R after each other one
 Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
 the paper-reference cache (experiments/paper_reference/run.py).
 """
@@ -60,8 +62,13 @@ def run_method(spec: str, scene, mould, seed: int) -> SimResult:
         pos, ori, anneal_info = anneal_mod.anneal(lattice, pos, ori, budget, [seed, 2],
                                                   t_init=t_hi, t_ratio=t_hi / t_lo)
     elif kind == "relax":
-        t_hi, t_lo, segments, sweeps, relax = (float(args[0]), float(args[1]), int(args[2]),
-                                               int(args[3]), int(args[4]))
+        t_hi, t_lo, segments, sweeps = float(args[0]), float(args[1]), int(args[2]), int(args[3])
+        if "+" in args[4]:  # F+R: F evaluations after the first segment, R after the others
+            first, rest = map(int, args[4].split("+"))
+            relax = np.array([first] + [rest] * (segments - 1))
+        else:  # R, or R0-R1: a linear ramp over the segments
+            first, _, last = args[4].partition("-")
+            relax = np.rint(np.linspace(int(first), int(last or first), segments)).astype(int)
         ftol = float(args[5]) if len(args) > 5 else None
         pos, ori, anneal_info = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2], t_hi,
                                                           t_lo, segments, sweeps, relax)

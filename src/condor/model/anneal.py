@@ -286,27 +286,32 @@ def anneal(
 
 
 def relaxed_anneal(lattice, positions, orientations, seed_seq, t_hi: float, t_lo: float,
-                   segments: int, moves: int, relax_evaluations: int, delta: float = DELTA,
+                   segments: int, moves: int, relax_evaluations, delta: float = DELTA,
                    threads: int = 1) -> tuple[np.ndarray, np.ndarray, dict]:
     """An anneal from t_hi to t_lo (exponential, `segments` x `moves` moves a cell; `moves`
     a whole number of sweeps, MOVES_PER_SWEEP moves a cell each) whose
-    positions are relaxed by L-BFGS (positions only, `relax_evaluations` evaluations) after
-    every segment: Metropolis samples the orientations and the local position fluctuations,
-    the relaxation carries the long-wavelength elastic modes that single-cell moves relax
-    only over ~L^2 sweeps. Returns (positions, orientations, info) with info["anneal_*"] as
-    `anneal` and relax_evaluations spent."""
+    positions are relaxed by L-BFGS (positions only, `relax_evaluations` evaluations: one
+    number, or one a segment) after every segment: Metropolis samples the orientations and
+    the local position fluctuations, the relaxation carries the long-wavelength elastic modes
+    that single-cell moves relax only over ~L^2 sweeps. Returns (positions, orientations,
+    info) with info["anneal_*"] as `anneal` and relax_evaluations spent."""
     from condor.model.lbfgs import minimise_lbfgs  # the minimiser's floor is beside this one
 
     if moves % MOVES_PER_SWEEP or moves <= 0:
         raise ValueError(f"moves between relaxations must be a positive multiple of "
                          f"{MOVES_PER_SWEEP} (a sweep), got {moves}")
+    schedule = np.asarray(relax_evaluations, dtype=np.int64)
+    if schedule.ndim > 1 or (schedule.ndim == 1 and len(schedule) != segments):
+        raise ValueError(f"relax_evaluations must be one number or one a segment ({segments}), "
+                         f"got {relax_evaluations!r}")
+    schedule = np.broadcast_to(schedule, (segments,))
     run = AnnealRun(lattice, positions, orientations, segments * moves, seed_seq, t_hi,
                     t_hi / t_lo, delta, threads=threads)
     relax = 0
-    for _ in range(segments):
+    for evaluations in schedule:
         run.advance(moves // MOVES_PER_SWEEP)
-        if relax_evaluations > 0:
-            pos, ori, info = minimise_lbfgs(lattice, run.pos, run.ori, relax_evaluations, 0.0,
+        if evaluations > 0:
+            pos, ori, info = minimise_lbfgs(lattice, run.pos, run.ori, int(evaluations), 0.0,
                                             delta=delta, positions_only=True)
             relax += info["min_evaluations"]
             run.set_state(pos, ori)
