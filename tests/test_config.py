@@ -356,3 +356,18 @@ def test_a_config_file_mistake_is_one_line_naming_the_file_and_line(tmp_path, te
     assert "\n" not in str(info.value) and str(path) in str(info.value) and said in str(info.value)
     with pytest.raises(ConfigError, match=f"config file {tmp_path / 'gone.yaml'} does not exist"):
         Config.load(tmp_path / "gone.yaml")
+
+
+def test_a_store_of_another_solver_recipe_is_refused_not_mixed(tmp_path, monkeypatch):
+    # the relaxed anneal's recipe (relaxations, tolerance) is not in the config: a store records
+    # it, and a build under another recipe is refused before any job writes a sample
+    import condor.model.simulate as sim
+    from condor.data.store import StoreError, create_store
+
+    config = Config.default()
+    path = tmp_path / "d.zarr"
+    create_store(path, config.store_spec())
+    assert not create_store(path, config.store_spec())  # the same recipe: kept
+    monkeypatch.setattr(sim, "RELAXED_FIRST_RELAX", sim.RELAXED_FIRST_RELAX + 1)
+    with pytest.raises(StoreError, match="solver_recipe"):
+        create_store(path, config.store_spec())

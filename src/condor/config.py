@@ -34,7 +34,7 @@ from condor.moulds.mould import PAPER
 from condor.moulds.paper import MouldParams
 from condor.moulds.sources import assign_sources, make_mould, tether_free
 from condor.model.scenes import Scene, get_scene
-from condor.model.simulate import DEFAULT_SOLVER, default_budget
+from condor.model.simulate import DEFAULT_SOLVER, default_budget, solver_recipe
 from condor.model.minimise import FTOL
 from condor.data.store import SPLITS, StoreSpec, assign_splits
 from condor.studies.recipes import MIN_REPLICAS
@@ -285,6 +285,7 @@ class Config:
                    "sigma": scene.sigma, "model": dict(MODEL_PARAMETERS),
                    "mould_params": {"no_tether_fraction": self.mould_params().no_tether_fraction},
                    "solver": self.solver()[0], "solver_budget": self.solver()[1],
+                   "solver_recipe": solver_recipe(self.solver()[0]),
                    "data_config": self.data_config()},
         )
 
