@@ -14,6 +14,7 @@ replica seeds of the mould, then L-BFGS to the dataset's tolerance):
                            instead of the dataset's tolerance
   relax:Thi:Tlo:S:W:R0-R1  R ramped linearly from R0 (the first segment) to R1 (the last)
   relax:Thi:Tlo:S:W:F+R    F evaluations after the first segment, R after each other one
+  relax:Thi:Tlo:S:W:F+R,Q  the same, Q after each other one in a mould without posts
 Runs are cached (fields, energy, evaluations) under --cache; the reference runs are read from
 the paper-reference cache (experiments/paper_reference/run.py).
 """
@@ -64,8 +65,10 @@ def run_method(spec: str, scene, mould, seed: int) -> SimResult:
     elif kind == "relax":
         t_hi, t_lo, segments, sweeps = float(args[0]), float(args[1]), int(args[2]), int(args[3])
         if "+" in args[4]:  # F+R: F evaluations after the first segment, R after the others
-            first, rest = map(int, args[4].split("+"))
-            relax = np.array([first] + [rest] * (segments - 1))
+            first, rest = args[4].split("+")  # F+R,Q: Q after the others without posts
+            rest, _, free = rest.partition(",")
+            later = int(free) if free and not lattice.fixed.any() else int(rest)
+            relax = np.array([int(first)] + [later] * (segments - 1))
         else:  # R, or R0-R1: a linear ramp over the segments
             first, _, last = args[4].partition("-")
             relax = np.rint(np.linspace(int(first), int(last or first), segments)).astype(int)
