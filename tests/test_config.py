@@ -364,7 +364,7 @@ def test_a_store_of_another_solver_recipe_is_refused_not_mixed(tmp_path, monkeyp
     import condor.model.simulate as sim
     from condor.data.store import StoreError, create_store
 
-    config = Config.default()
+    config = Config.load(CONFIG_DIR / "tiny.yaml")
     path = tmp_path / "d.zarr"
     create_store(path, config.store_spec())
     assert not create_store(path, config.store_spec())  # the same recipe: kept
