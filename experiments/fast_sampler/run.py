@@ -33,6 +33,7 @@ os.environ.setdefault("NUMBA_NUM_THREADS", "1")
 import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
+from condor.files import write_text  # noqa: E402
 from condor.model import anneal as anneal_mod  # noqa: E402
 from condor.model.energy import random_orientations  # noqa: E402
 from condor.model.lattice import build_lattice  # noqa: E402
@@ -160,7 +161,7 @@ def main(argv=None) -> int:
             print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in row.items()), flush=True)
     if a.out:
-        pd.DataFrame(rows).to_csv(a.out, index=False, float_format="%.5g")
+        write_text(a.out, pd.DataFrame(rows).to_csv(index=False, float_format="%.5g"))
     return 0
 
 

@@ -279,11 +279,12 @@ def default_budget(solver: str | None, box: float) -> float:
     return float(budget)
 
 
-def relaxation_schedule(budget: float, segments: int, tethered: bool = True) -> list[int]:
-    """The relaxed anneal's L-BFGS evaluations after each of its `segments` segments at
-    `budget` moves a cell: RELAXED_FIRST_RELAX x sqrt(budget / DEFAULT_BUDGET's) after the
-    first, then RELAXED_RELAX after every other (RELAXED_RELAX_FREE in a mould without posts);
-    the first never fewer than the others."""
+def relaxation_schedule(budget: float, tethered: bool = True) -> list[int]:
+    """The relaxed anneal's L-BFGS evaluations after each of its segments (one a RELAXED_MOVES
+    moves a cell of `budget`, at least one): RELAXED_FIRST_RELAX x sqrt(budget /
+    DEFAULT_BUDGET's) after the first, then RELAXED_RELAX after every other
+    (RELAXED_RELAX_FREE in a mould without posts); the first never fewer than the others."""
+    segments = max(1, int(round(budget / RELAXED_MOVES)))
     later = RELAXED_RELAX if tethered else RELAXED_RELAX_FREE
     scale = math.sqrt(max(budget, 0.0) / DEFAULT_BUDGET["relaxed_anneal"])
     first = max(later, int(round(RELAXED_FIRST_RELAX * scale)))
@@ -318,13 +319,10 @@ def _solve(lattice: Lattice, pos, ori, solver: str, budget: float, seed: int, ft
                                              checkpoint=checkpoint, log=log, threads=threads)
         info.update(info_a)
     if solver == "relaxed_anneal":
-        segments = max(1, int(round(budget / RELAXED_MOVES)))
+        schedule = relaxation_schedule(budget, bool(lattice.fixed.any()))
         pos, ori, info_a = anneal_mod.relaxed_anneal(lattice, pos, ori, [seed, 2],
-                                                     *RELAXED_WINDOW, segments, RELAXED_MOVES,
-                                                     relaxation_schedule(
-                                                         budget, segments,
-                                                         bool(lattice.fixed.any())),
-                                                     threads=threads)
+                                                     *RELAXED_WINDOW, len(schedule),
+                                                     RELAXED_MOVES, schedule, threads=threads)
         info.update(info_a)
         pos, ori, info_m = lbfgs_mod.minimise_lbfgs(lattice, pos, ori, lbfgs_mod.MAX_ITER, ftol)
         info.update(info_m)
