@@ -244,15 +244,15 @@ def _one_free_cell():
 
 
 def _cell_energy(lat, ori, cell, r, s):
-    """The free cell's bond energies at positions r and orientations s (..., 3): the model's
-    formula written again in numpy, independent of the kernels."""
+    """The free cell's bond energies at positions r and orientations s (..., 3; either may be
+    one (3,) vector): the model's formula written again in numpy, independent of the kernels."""
     b = lat.cell_bonds[lat.cell_ptr[cell]:lat.cell_ptr[cell + 1]]
     other = np.where(lat.bond_i[b] == cell, lat.bond_j[b], lat.bond_i[b])
     l = lat.positions[other] - r[..., None, :]
     d = np.linalg.norm(l, axis=-1)
     lhat = l / d[..., None]
-    ci = np.sum(lhat * s[..., None, :], axis=-1)
-    cj = np.sum(lhat * ori[other], axis=-1)
+    ci = np.einsum("...bk,...k->...b", lhat, s)
+    cj = np.einsum("...bk,bk->...b", lhat, ori[other])
     rest = lat.bond_rest[b] * (1 - DELTA / 2 * (2 - ci**2 - cj**2))
     return 0.5 * np.sum(lat.bond_kbar[b] * (d - rest) ** 2, axis=-1)
 
@@ -288,7 +288,7 @@ def test_orientation_moves_sample_boltzmann_against_quadrature():
     c, p = np.meshgrid(cos_t, phi, indexing="ij")
     sin_t = np.sqrt(1 - c**2)
     s = np.stack([sin_t * np.cos(p), sin_t * np.sin(p), c], axis=-1)
-    e = _cell_energy(lat, ori, cell, np.broadcast_to(lat.positions[cell], s.shape), s)
+    e = np.array([_cell_energy(lat, ori, cell, lat.positions[cell], row) for row in s])
     w = np.exp(-(e - e.min()) / temp)
     expected = np.einsum("ij,ija,ijb->ab", w / w.sum(), s, s)
     assert expected[0, 0] - expected[2, 2] > 0.3  # far from isotropic: a real test
@@ -306,7 +306,7 @@ def test_position_moves_sample_boltzmann_against_quadrature():
     r0 = lat.positions[cell]
     g = np.linspace(-0.17, 0.17, 69)
     grid = r0 + np.stack(np.meshgrid(g, g, g, indexing="ij"), axis=-1)
-    e = _cell_energy(lat, ori, cell, grid, np.broadcast_to(ori[cell], grid.shape))
+    e = np.array([_cell_energy(lat, ori, cell, plane, ori[cell]) for plane in grid])
     w = np.exp(-(e - e.min()) / temp)
     w /= w.sum()
     mean = np.einsum("ijk,ijka->a", w, grid)
