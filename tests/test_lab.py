@@ -79,3 +79,32 @@ def test_a_lab_mould_carries_its_family_through_json(tmp_path):
     d.pop("family")
     d["symmetry"] = "cyclic"
     assert Mould.from_dict(d).family == PAPER
+
+
+def test_rim_posts_stand_at_their_inset_from_one_wall_equally_spaced():
+    """Composite moulds' wall-following posts (as in a frame's bars or along a strip's sides):
+    each at `inset` from the wall it follows, the other wall farther, equally spaced along it."""
+    from shapely.geometry import Polygon
+
+    from condor.moulds.composite import _rim_posts
+
+    frame = Polygon([(0, 0), (3, 0), (3, 2), (0, 2)], [[(0.6, 0.6), (2.4, 0.6), (2.4, 1.4),
+                                                       (0.6, 1.4)]])
+    walls = [frame.exterior, frame.interiors[0]]
+    seen = set()
+    for seed in range(12):
+        posts = _rim_posts(np.random.default_rng(seed), frame, 5, inset=0.2)  # bars of 0.6
+        assert posts is not None and posts.shape == (5, 2)
+        d = np.array([[w.distance(shapely.Point(p)) for w in walls] for p in posts])
+        nearest = d.argmin(axis=1)
+        assert len(set(nearest)) == 1  # one wall followed
+        assert np.allclose(d.min(axis=1), 0.2, atol=0.01)
+        seen.add(int(nearest[0]))
+        # equal spacing along the offset curve: the gaps between neighbours along it agree
+        ring = Polygon(walls[nearest[0]]).buffer(0.2 if nearest[0] else -0.2)
+        along = np.sort([ring.exterior.project(shapely.Point(p), normalized=True) for p in posts])
+        gaps = np.diff(np.append(along, along[0] + 1))
+        assert np.allclose(gaps, 0.2, atol=0.01)
+    assert seen == {0, 1}  # the outer wall and the hole's, each chosen sometimes
+    # an inset that leaves the mould (past the bar) places nothing
+    assert _rim_posts(np.random.default_rng(0), frame, 4, inset=0.7) is None

@@ -28,6 +28,10 @@ from condor.moulds.lab import (
 from condor.moulds.mould import Mould
 
 COMPOSITE = "composite"  # the source's and its moulds' family name
+RIM_SHARE = 0.5  # the share of composite moulds whose posts follow a wall (`_rim_posts`)
+RIM_INSET = (0.08, 0.25)  # how far inside the wall they stand, in the parts' unit width
+BAND_SHARE = 0.25  # the share of composite moulds that are a band round a hole of their shape
+BAND_WIDTH = (0.2, 0.4)  # that band's width, in the parts' unit width
 
 
 def _primitive(rng) -> Polygon:
@@ -53,10 +57,12 @@ def _primitive(rng) -> Polygon:
 
 def _draw(rng):
     """A union of 1-3 random parts (each joined at a point of the outline so far), concave
-    corners rounded, with 1-3 holes a third of the time and 1-8 posts inside, spread apart or
-    placed at random: not a shape labs cast, but one that varies what they vary (the number
-    and placement of posts, holes, elongation, joints) so that a surrogate trained on it meets
-    fewer moulds unlike anything it saw."""
+    corners rounded; a quarter of them a band round a hole of the outline's own shape (a frame
+    or an annulus of any outline), a third of the rest with 1-3 small holes; 1-8 posts inside:
+    half the time along one wall (`_rim_posts`; a band's on its midline), else spread apart or
+    placed at random. Not a shape labs cast, but one that varies what they vary (the number and
+    placement of posts, holes, narrow bands, elongation, joints) so that a surrogate trained on
+    it meets fewer moulds unlike anything it saw."""
     parts = [_primitive(rng)]  # each part holds its centre: a joint joins the union
     for _ in range(int(rng.integers(0, 3))):
         joint = parts[int(rng.integers(len(parts)))].exterior.interpolate(rng.uniform(0, 1),
@@ -65,7 +71,18 @@ def _draw(rng):
     outline = _fillet(shapely.union_all(parts), 0.1)
     if outline.geom_type != "Polygon":
         return outline, np.zeros((0, 2)), {}  # refused by _attempt: drawn again
-    if rng.random() < 1 / 3:
+    band = None
+    if rng.random() < BAND_SHARE:
+        band = rng.uniform(*BAND_WIDTH)
+        hole = outline.buffer(-band).buffer(-0.05).buffer(0.05)
+        ring = outline.difference(hole) if hole.geom_type == "Polygon" else None
+        # a band whose every neck is near its width: no pinch where the parts join
+        if ring is not None and hole.area > 0.05 * outline.area and \
+                ring.buffer(-0.45 * band).geom_type == "Polygon":
+            outline = ring
+        else:
+            band = None
+    elif rng.random() < 1 / 3:
         for _ in range(int(rng.integers(1, 4))):
             inner = outline.buffer(-0.3)
             if inner.is_empty:
@@ -80,14 +97,42 @@ def _draw(rng):
             if outline.buffer(-0.08).contains(hole):
                 outline = outline.difference(hole)
     n = int(rng.integers(1, 9))
+    if rng.random() < RIM_SHARE:
+        posts = _rim_posts(rng, outline, n, None if band is None else band / 2)
+        if posts is not None:
+            return outline, posts, {"posts": n, "rim": 1}
     return outline, random_posts(rng, outline, n, spread=rng.random() < 0.5), {"posts": n}
+
+
+def _rim_posts(rng, outline: Polygon, n: int, inset: float | None = None):
+    """n posts at equal arc spacing (a random phase) along one wall, `inset` inside it: the
+    outer wall's inward offset or a hole's outward one, as labs anchor a strip along its sides,
+    a frame in its bars, an annulus on its midline or a cross near its arms' ends. None when
+    that offset leaves the mould (a hole's past the next wall): the caller places them
+    elsewhere. `inset` None: drawn from RIM_INSET."""
+    walls = [outline.exterior, *outline.interiors]
+    k = int(rng.integers(len(walls)))
+    inset = rng.uniform(*RIM_INSET) if inset is None else inset
+    offset = Polygon(walls[k]).buffer(-inset if k == 0 else inset, quad_segs=ARC_SEGMENTS)
+    if offset.geom_type != "Polygon" or offset.is_empty:
+        return None
+    phase = rng.uniform(0, 1)
+    points = [offset.exterior.interpolate((phase + j / n) % 1.0, normalized=True)
+              for j in range(n)]
+    xy = np.array([[p.x, p.y] for p in points])
+    if not np.all(shapely.contains_xy(outline.buffer(-0.5 * inset), xy[:, 0], xy[:, 1])):
+        return None
+    return xy
 
 
 COMPOSITE_FAMILY = LabFamily(
     COMPOSITE, "a union of 1-3 random parts (stadiums, ellipses, rounded rectangles, convex "
-    "polygons), a third with 1-3 holes, 1-8 posts spread or at random", _draw,
+    "polygons), a quarter a band round a hole of its shape, a quarter with 1-3 small holes, "
+    "1-8 posts along a wall (half) or spread or at random",
+    _draw,
     {"parts": (1, 3), "part aspect": (1.0, 5.0), "part size": (0.6, 1.4), "holes": (0, 3),
-     "hole size / part width": (0.15, 0.6), "posts": (1, 8), "post radius": (0.015, 0.07)})
+     "hole size / part width": (0.15, 0.6), "posts": (1, 8), "post radius": (0.015, 0.07),
+     "rim post inset / part width": RIM_INSET, "band / part width": BAND_WIDTH})
 
 
 def composite_mould(seed: int, mould_id: int, scene: Scene,
