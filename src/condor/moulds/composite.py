@@ -7,8 +7,11 @@ scaled to an area in the lab range, turned, centred and checked as a lab mould i
 (`condor.moulds.lab.family_mould`, the same stream). The paper's generator never makes one
 or two posts or holes, and each lab family makes one kind of each: the hope was that a
 surrogate trained on composite moulds meets fewer moulds unlike anything it saw. Measured in
-experiments/generalisation/README.md ("Composite moulds in training"): the held-out kinds'
-error stayed, their tension bias moved both ways, so the default draws none. A dataset draws
+experiments/generalisation/README.md: without posts along walls or bands ("Composite moulds in
+training") the held-out kinds' error stayed; with them ("Composite moulds with posts along a
+wall and bands round holes") annuli, frames and crosses held out gained 0.1-0.3x of their noise
+ceiling, which more moulds of the families did not give. The default still draws none (that
+README says why). A dataset draws
 `moulds.composite_fraction` of its training and validation lab moulds from here
 (`condor.moulds.sources`); the test sets never hold one.
 """
