@@ -96,11 +96,19 @@ def main(argv=None) -> int:
     ap.add_argument("--lab-share", type=float, default=0.5)
     ap.add_argument("--n-train", type=int, default=study.N_TRAIN,
                     help="the models' training moulds (run.py's --n-train)")
+    ap.add_argument("--extra", type=Path, default=None,
+                    help="run.py's --extra: the store its models took more training moulds from")
+    ap.add_argument("--extra-share", type=float, default=0.25, help="run.py's --extra-share")
+    ap.add_argument("--extra-lab-share", type=float, default=1.0,
+                    help="run.py's --extra-lab-share")
     a = ap.parse_args(argv)
     ds, fresh = open_store(a.pool), open_store(a.fresh)
+    extra = open_store(a.extra) if a.extra is not None else None
+    suffix = f"_extra{a.extra_share:g}" if extra is not None else ""  # run.py's names
     per = pd.read_csv(a.out / "moulds.csv")
     rows = []
     for name, spec in study.models(ds, a.lab_share, a.n_train).items():
+        name += suffix
         # run.train_model's names: NAME[_eEPOCHS]_KEY.pt (not NAME_n450_..., NAME_extra...)
         own = re.compile(rf"^{re.escape(name)}(_e\d+)?_[0-9a-f]{{12}}\.pt$")
         checkpoints = sorted(p for p in a.cache.glob(f"{name}_*.pt") if own.match(p.name))
@@ -108,9 +116,12 @@ def main(argv=None) -> int:
         if not checkpoints or mine.empty:
             continue
         predictor = Predictor(checkpoints[-1], device="cpu", precision="float32")
-        held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
-        train_ids = study.choose(ds, "train", spec["n_train"], spec["lab_share"], held)
+        train_ids, extra_ids = study.training_ids(ds, spec, extra, a.extra_share,
+                                                  a.extra_lab_share)
         bank = scores_of(predictor, ds, train_ids, a.cache, "train")
+        if extra_ids:  # the extra store's training moulds are the model's too
+            more = scores_of(predictor, extra, extra_ids, a.cache, "train_extra")
+            bank = {k: np.concatenate([bank[k], more[k]]) for k in bank}
         for group, store in (("pool", ds), ("fresh", fresh)):
             subset = mine[mine["family"].eq(study.FRESH) == (group == "fresh")]
             if subset.empty:

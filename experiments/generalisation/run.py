@@ -142,22 +142,33 @@ def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]
     return out
 
 
-def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int,
-                extra=None, extra_share: float = 0.0, extra_lab_share: float = 1.0) -> Path:
-    """Train (or find in `cache`) the model `spec` names; with `extra` (a store) and
-    `extra_share`, that share of its training moulds comes from the extra store's training
-    moulds (`choose`: extra_lab_share of them lab moulds, the held-out kinds left out; 1, the
-    composite store's, takes them in id order) and the pool supplies the rest, so that the
-    model's lab share is spec's."""
-    held = () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
+def held_out(spec: dict) -> tuple[str, ...]:
+    return () if spec["held_out"] == "none" else tuple(spec["held_out"].split("+"))
+
+
+def training_ids(ds, spec: dict, extra=None, extra_share: float = 0.0,
+                 extra_lab_share: float = 1.0) -> tuple[list[int], list[int]]:
+    """The model's training moulds: (ids in the pool ds, ids in the extra store): with `extra`,
+    round(extra_share x n) of the n come from it (`choose`: extra_lab_share of them lab moulds,
+    the held-out kinds left out; 1, the composite store's, takes them in id order) and the pool
+    supplies the rest, so that the model's lab share is spec's."""
+    held = held_out(spec)
     n = spec.get("n_train", N_TRAIN)
     n_extra = int(round(extra_share * n)) if extra is not None else 0
     n_paper = n - int(round(spec["lab_share"] * n))
     n_paper_extra = n_extra - int(round(extra_lab_share * n_extra))
     n_pool = n - n_extra
-    train_ids = choose(ds, "train", n_pool, 1 - (n_paper - n_paper_extra) / n_pool, held)
-    if n_extra:
-        extra_ids = choose(extra, "train", n_extra, extra_lab_share, held)
+    pool_ids = choose(ds, "train", n_pool, 1 - (n_paper - n_paper_extra) / n_pool, held)
+    extra_ids = choose(extra, "train", n_extra, extra_lab_share, held) if n_extra else []
+    return pool_ids, extra_ids
+
+
+def train_model(ds, name: str, spec: dict, settings: dict, cache: Path, threads: int,
+                extra=None, extra_share: float = 0.0, extra_lab_share: float = 1.0) -> Path:
+    """Train (or find in `cache`) the model `spec` names, on `training_ids`."""
+    held = held_out(spec)
+    train_ids, extra_ids = training_ids(ds, spec, extra, extra_share, extra_lab_share)
+    if extra_ids:
         ds = with_extra(ds, extra, extra_ids)
         train_ids = train_ids + [int(i) + EXTRA_OFFSET for i in extra_ids]
     val = first_replicas(ds, "val")  # validation only watches the loss: every mould of the
