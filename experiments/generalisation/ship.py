@@ -5,7 +5,7 @@ and the fresh seed's) and `novelty` (novelty_calibration.csv and the threshold c
 novelty.py, which `condor predict` reads).
 
   python experiments/generalisation/ship.py --commit COMMIT [--tables n450 --n-train 450 \
-      --lab-share 0.44]
+      --lab-share 0.44] [--extra-share 0.2]
 
 reads generalisation.csv, novelty.csv and novelty_calibration.csv of --tables (a folder of this
 study: run.py's and novelty.py's outputs; this folder itself by default) and
@@ -43,6 +43,9 @@ def main(argv=None) -> int:
     ap.add_argument("--tables", default=".", help="the folder of the tables, in this study's")
     ap.add_argument("--n-train", type=int, default=250, help="the models' training moulds")
     ap.add_argument("--lab-share", type=float, default=0.5, help="their lab share")
+    ap.add_argument("--extra-share", type=float, default=0.0,
+                    help="run.py's --extra-share: the share of composite moulds "
+                         "(composite_rim.yaml's store) among their training moulds")
     a = ap.parse_args(argv)
     tables = (HERE / a.tables).resolve()
     where = tables.relative_to(REPO).as_posix()
@@ -54,6 +57,9 @@ def main(argv=None) -> int:
     calibration.to_csv(FINDINGS / "novelty.csv", index=False)
     choice = json.loads((tables / "novelty_choice.json").read_text())
     n_models = table["held_out"].nunique()
+    extra = (f" --extra COMPOSITE_RIM --extra-share {a.extra_share:g}" if a.extra_share else "")
+    composite = (f" ({round(a.extra_share * a.n_train)} of them composite)" if a.extra_share
+                 else "")
     path = FINDINGS / "findings.json"
     findings = json.loads(path.read_text())
     findings["generalisation"] = {
@@ -64,8 +70,8 @@ def main(argv=None) -> int:
         "table": "generalisation.csv",
         "experiment": "experiments/generalisation",
         "source": f"{where}/generalisation.csv (run.py --steps lofo --epochs 120 "
-                  f"--n-train {a.n_train} --lab-share {a.lab_share:g}: {n_models} models of "
-                  f"{a.n_train} training moulds, {a.lab_share:.0%} lab; 8 test "
+                  f"--n-train {a.n_train} --lab-share {a.lab_share:g}{extra}: {n_models} models "
+                  f"of {a.n_train} training moulds, {a.lab_share:.0%} lab{composite}; 8 test "
                   "moulds a family x 4 replicas; error against the expected fields with the "
                   "noise removed, 95% intervals over moulds)",
         "commit": a.commit,
