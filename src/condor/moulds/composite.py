@@ -120,9 +120,8 @@ def _rim_posts(rng, outline: Polygon, n: int, inset: float | None = None):
     if offset.geom_type != "Polygon" or offset.is_empty:
         return None
     phase = rng.uniform(0, 1)
-    points = [offset.exterior.interpolate((phase + j / n) % 1.0, normalized=True)
-              for j in range(n)]
-    xy = np.array([[p.x, p.y] for p in points])
+    xy = shapely.get_coordinates(shapely.line_interpolate_point(
+        offset.exterior, (phase + np.arange(n) / n) % 1.0, normalized=True))
     if not np.all(shapely.contains_xy(outline.buffer(-0.5 * inset), xy[:, 0], xy[:, 1])):
         return None
     return xy
