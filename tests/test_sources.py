@@ -101,12 +101,28 @@ def test_composite_moulds_take_their_share_of_training_lab_moulds_and_never_a_te
         assign_sources(splits, 0.5, 40, FAMILY_NAMES, seed=3, composite_fraction=1.5)
 
 
+def test_a_test_set_of_no_set_size_mirrors_the_training_sources_beside_composite_moulds():
+    from condor.moulds.composite import COMPOSITE
+    splits = _splits(3000, 30, 1000)
+    for lab_fraction, composite in ((0.6, 1 / 3), (0.5, 0.0), (0.8, 0.5), (0.3, 0.9)):
+        sources = assign_sources(splits, lab_fraction, None, FAMILY_NAMES, seed=5, pinned=[0],
+                                 composite_fraction=composite)
+        train = Counter(src for s, src in zip(splits, sources) if s == "train")
+        family = sum(v for k, v in train.items() if k not in (PAPER, COMPOSITE))
+        share = family / (family + train[PAPER])  # counted, not the formula
+        test = [src for s, src in zip(splits, sources) if s == "test"]
+        free = len(test) - (splits[0] == "test")
+        assert COMPOSITE not in test
+        assert abs(sum(src != PAPER for src in test) / free - share) < 2 / 1000
+
+
 def test_the_composite_share_defines_the_data_only_when_used():
     from condor.moulds.composite import COMPOSITE
-    config = Config.default()
-    assert "composite_fraction" not in Config.default(
-        moulds={"composite_fraction": 0.0}).data_config()  # stores built before the key
-    other = Config.default(moulds={"composite_fraction": 0.5})
+    config = Config.default(moulds={"lab_fraction": 0.5, "composite_fraction": 0.0})
+    assert "composite_fraction" not in config.data_config()  # stores built before the key
+    # a third of the training moulds composite beside the same families' and paper's shares:
+    # the same test moulds, the same lab test set
+    other = Config.default(moulds={"lab_fraction": 2 / 3, "composite_fraction": 0.5})
     assert other.data_config() != config.data_config()
     assert COMPOSITE in other.sources() and other.test_moulds() == config.test_moulds()
     assert other.test_moulds("lab") == config.test_moulds("lab")

@@ -21,10 +21,20 @@ from condor.moulds.paper import MouldParams, generate_mould, is_tether_free
 SOURCE_STREAM = 0x1AB  # default_rng([seed, SOURCE_STREAM]): which moulds are lab moulds
 
 
+def lab_test_share(lab_fraction: float, composite_fraction: float) -> float:
+    """The share of lab moulds in a test set of no set size (`split.lab_test` null): the lab
+    families' share of the training moulds that are not composite, lab_fraction (1 - c) /
+    (1 - lab_fraction c), so that the test sets mirror the two sources the training set draws
+    its moulds from (composite moulds train only). lab_fraction itself without composite
+    moulds, and when every training mould is composite."""
+    rest = 1.0 - lab_fraction * composite_fraction
+    return lab_fraction if rest <= 0 else lab_fraction * (1.0 - composite_fraction) / rest
+
+
 def assign_sources(splits, lab_fraction: float, lab_test: int | None, families, seed: int,
                    pinned=(), composite_fraction: float = 0.0) -> tuple[str, ...]:
     """The source of every mould (PAPER, a lab family or COMPOSITE), from its split (`splits`,
-    one label a mould): `lab_test` of the test moulds (None: round(lab_fraction x n) of the n
+    one label a mould): `lab_test` of the test moulds (None: round(lab_test_share x n) of the n
     test moulds that are not pinned) and round(lab_fraction x n) of the n moulds of each other
     split are lab moulds, chosen by a seeded permutation; the `pinned` moulds (those with a
     paper reference) are always the generator's. Of a training or validation split's lab
@@ -50,8 +60,12 @@ def assign_sources(splits, lab_fraction: float, lab_test: int | None, families, 
     for split in ("test", "val", "train"):
         members = [int(i) for i in order if splits[i] == split]
         free = [i for i in members if i not in pinned]
-        count = (int(round(lab_fraction * len(free if split == "test" else members)))
-                 if split != "test" or lab_test is None else int(lab_test))
+        if split != "test":
+            count = int(round(lab_fraction * len(members)))
+        elif lab_test is None:
+            count = int(round(lab_test_share(lab_fraction, composite_fraction) * len(free)))
+        else:
+            count = int(lab_test)
         if count > len(free):
             raise ValueError(f"{count} lab moulds asked of the {len(members)} {split} moulds, "
                              f"of which {len(free)} are free (the others hold a paper "
