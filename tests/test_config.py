@@ -32,13 +32,14 @@ OVERLAYS = ["tiny.yaml", "paper.yaml"]
 
 
 def test_the_default_run_is_the_schemas_defaults():
-    """config.yaml shows keys to change, each at the schema's default: the default run (550
-    moulds, 100 test moulds with 4 replicas, half the moulds from the lab families, the
-    faithful solver, the `unet` preset) is the schema's."""
+    """config.yaml shows keys to change, each at the schema's default: the default run (650
+    moulds, 100 test moulds with 4 replicas, 60% of the training moulds lab moulds, a third of
+    those composite, the faithful solver, the `unet` preset) is the schema's."""
     config = Config.load(CONFIG_DIR / "config.yaml")
     assert config == Config.default()
     assert (config.n_moulds, config.split["test"], config.simulation["replicas"]["test"],
-            config.moulds["lab_fraction"]) == (550, 100, 4, 0.5)
+            config.moulds["lab_fraction"], config.moulds["composite_fraction"]) == (
+                650, 100, 4, 0.6, 0.33)
     assert config.solver()[0] == "relaxed_anneal"
     assert config.surrogate["variants"] == ("unet",) and dict(config.surrogate["models"]) == {}
 

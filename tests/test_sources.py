@@ -66,13 +66,16 @@ def test_the_config_refuses_mixtures_it_cannot_make_naming_the_key():
 
 
 def test_lab_test_moulds_take_the_test_replicas_and_define_the_data():
+    from condor.moulds.composite import COMPOSITE
     config = Config.default()
     sources, splits, replicas = config.sources(), config.splits(), config.replicas()
     lab_tests = [i for i, (s, src) in enumerate(zip(splits, sources))
                  if s == "test" and src != PAPER]
     free = [i for i in config.test_moulds() if i not in reference_moulds("default", config.seed)]
-    assert config.split["lab_test"] is None  # the default: lab_fraction of the free ones
-    assert len(lab_tests) == round(config.moulds["lab_fraction"] * len(free))
+    assert config.split["lab_test"] is None  # the default: the families' share of training
+    train = Counter(src for s, src in zip(splits, sources) if s == "train")
+    family = sum(v for k, v in train.items() if k not in (PAPER, COMPOSITE))
+    assert len(lab_tests) == round(family / (family + train[PAPER]) * len(free))
     assert {replicas[i] for i in lab_tests} == {config.simulation["replicas"]["test"]}
     assert config.test_moulds("lab") == lab_tests
     assert set(config.test_moulds("paper")) | set(lab_tests) == set(config.test_moulds())
