@@ -108,3 +108,36 @@ def test_rim_posts_stand_at_their_inset_from_one_wall_equally_spaced():
     assert seen == {0, 1}  # the outer wall and the hole's, each chosen sometimes
     # an inset that leaves the mould (past the bar) places nothing
     assert _rim_posts(np.random.default_rng(0), frame, 4, inset=0.7) is None
+
+
+def test_random_posts_leave_a_sliver_of_an_inner_region_for_the_whole_outline(monkeypatch):
+    """A band whose half-width is a hair over random_posts' wall margin leaves an inner region
+    of ~1e-9 of its bounds (a composite mould of the default drew one: 2 CPU minutes of
+    candidates). The posts then come from the whole band, after EMPTY_BATCHES misses."""
+    from shapely.geometry import Point
+
+    import condor.moulds.lab as lab
+
+    band = Point(0, 0).buffer(1, quad_segs=64).difference(
+        Point(0, 0).buffer(1 - 0.4 - 2e-7, quad_segs=64))
+    margin = 0.2 * 2.0 / 2  # the margin random_posts keeps from the wall: a fifth of half 2
+    assert 0 < band.buffer(-margin).area < 1e-8 * 4  # the sliver
+    calls = []
+    inside = shapely.contains_xy
+
+    def counted(*a):
+        calls.append(1)
+        if len(calls) > 25_000:  # a draw that never ends fails here rather than hangs
+            raise AssertionError("random_posts kept drawing")
+        return inside(*a)
+
+    monkeypatch.setattr(lab.shapely, "contains_xy", counted)
+    posts = lab.random_posts(np.random.default_rng(3), band, 4)
+    assert posts.shape == (4, 2)
+    assert shapely.contains_xy(band, posts[:, 0], posts[:, 1]).all()
+    assert lab.EMPTY_BATCHES <= len(calls) < lab.EMPTY_BATCHES + 100
+    # a disk's inner region holds every post at the margin from its wall, at once
+    calls.clear()
+    disk = Point(0, 0).buffer(1, quad_segs=64)
+    posts = lab.random_posts(np.random.default_rng(3), disk, 4)
+    assert (np.hypot(*posts.T) < 1 - margin + 1e-9).all() and len(calls) < 20

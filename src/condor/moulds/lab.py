@@ -240,21 +240,39 @@ def _oval(rng):
     return outline, np.array(posts), {"width": 2.0}
 
 
+# batches of 30 candidates that may all miss random_posts' inner region before it draws in the
+# whole outline: a region that 60,000 candidates miss is a sliver (one composite band drew a
+# core of 1e-8 of its bounds, 2 CPU minutes of candidates); a usual one misses a batch or two
+EMPTY_BATCHES = 2000
+
+
 def random_posts(rng, outline: Polygon, n: int, spread: bool = True) -> np.ndarray:
     """n points inside `outline`, at least a fifth of its inradius-ish size from the wall and
     spread out (the farthest of 30 candidates from the chosen ones, each time; with `spread`
-    False, the first candidate inside)."""
+    False, the first candidate inside). Where that inner region is a sliver that
+    EMPTY_BATCHES batches of candidates in a row all miss (a band whose half-width is about
+    that margin), the points are drawn anywhere inside `outline` instead; RuntimeError if
+    even those miss."""
     xmin, ymin, xmax, ymax = outline.bounds
     core = outline.buffer(-0.2 * min(xmax - xmin, ymax - ymin) / 2)
     if core.is_empty:
         core = outline
     chosen: list[np.ndarray] = []
     cx0, cy0, cx1, cy1 = core.bounds
+    empty = 0
     while len(chosen) < n:
         xy = rng.uniform([cx0, cy0], [cx1, cy1], size=(30, 2))
         xy = xy[shapely.contains_xy(core, xy[:, 0], xy[:, 1])]
         if not len(xy):
+            empty += 1
+            if empty >= EMPTY_BATCHES:
+                if core is outline:
+                    raise RuntimeError(f"no point inside the outline (area {outline.area:.3g}) "
+                                       f"in {EMPTY_BATCHES} batches of candidates")
+                core, empty = outline, 0
+                cx0, cy0, cx1, cy1 = core.bounds
             continue
+        empty = 0
         if chosen and spread:
             d = np.min(np.linalg.norm(xy[:, None] - np.array(chosen)[None], axis=2), axis=1)
             chosen.append(xy[int(np.argmax(d))])
