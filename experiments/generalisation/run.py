@@ -127,14 +127,17 @@ def with_extra(ds, extra, extra_ids):
                      compat="override", join="override", combine_attrs="override")
 
 
-def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN) -> dict[str, dict]:
+def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN,
+           single: bool = False) -> dict[str, dict]:
     """Every model of the study: name -> {lab_share, held_out, n_train}; the mixture models'
-    and, with n_train other than N_TRAIN, the size models' (the named share at n_train)."""
+    and, with n_train other than N_TRAIN, the size models' (the named share at n_train). The
+    lofo models hold out a kind (KINDS) each, or with `single` one family each (its sibling
+    trained on)."""
     tag = "" if n_train == N_TRAIN else f"_n{n_train}"
     out = {f"mixture_{share:g}{tag}": {"lab_share": share, "held_out": "none", "n_train": n_train}
            for share in LAB_SHARES}
     known = set(families_of(ds)) - {PAPER}
-    for kind in KINDS:
+    for kind in ([(f,) for pair in KINDS for f in pair] if single else KINDS):
         if not set(kind) <= known:
             raise ValueError(f"the pool holds no moulds of {sorted(set(kind) - known)}")
         out[f"without_{'_'.join(kind)}{tag}"] = {"lab_share": lab_share_lofo,
@@ -222,6 +225,8 @@ def main(argv=None) -> int:
     ap.add_argument("--n-train", type=int, default=N_TRAIN, help="training moulds a model")
     ap.add_argument("--epochs", type=int, default=None, help="default: the preset's")
     ap.add_argument("--only", nargs="+", default=None, help="train and score only these models")
+    ap.add_argument("--single", action="store_true",
+                    help="lofo: hold out one family at a time, its sibling of KINDS trained on")
     ap.add_argument("--extra", type=Path, default=None,
                     help="a store of more training moulds (composite.yaml's dataset.zarr)")
     ap.add_argument("--extra-share", type=float, default=0.25,
@@ -253,7 +258,7 @@ def main(argv=None) -> int:
     labels = {"paper": [PAPER] * len(ensembles["paper"].moulds),
               "lab": [str(fam[int(m)]) for m in ensembles["lab"].moulds],
               FRESH: [FRESH] * len(ensembles[FRESH].moulds)}
-    wanted = {n: s for n, s in models(ds, a.lab_share, a.n_train).items()
+    wanted = {n: s for n, s in models(ds, a.lab_share, a.n_train, a.single).items()
               if ("mixture" in a.steps and n.startswith("mixture"))
               or ("lofo" in a.steps and n.startswith("without"))}
     if a.only:
