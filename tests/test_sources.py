@@ -123,6 +123,8 @@ def test_the_composite_share_defines_the_data_only_when_used():
     from condor.moulds.composite import COMPOSITE
     config = Config.default(moulds={"lab_fraction": 0.5, "composite_fraction": 0.0})
     assert "composite_fraction" not in config.data_config()  # stores built before the key
+    paper = Config.default(moulds={"lab_fraction": 0.0, "composite_fraction": 0.33})
+    assert "composite_fraction" not in paper.data_config()  # no lab mould: none drawn
     # a third of the training moulds composite beside the same families' and paper's shares:
     # the same test moulds, the same lab test set
     other = Config.default(moulds={"lab_fraction": 2 / 3, "composite_fraction": 0.5})

@@ -269,9 +269,10 @@ class Config:
                 "split": _plain(self.split), "lab_fraction": self.moulds["lab_fraction"],
                 "lab_families": list(self.lab_families()),
                 "lab_area": list(self.moulds["lab_area"]),
-                # recorded when used: a store built before the key had none, and holds none
+                # recorded when it draws a mould (lab moulds asked for): a store built before
+                # the key had none, and a store of the generator's moulds alone holds none
                 **({"composite_fraction": self.moulds["composite_fraction"]}
-                   if self.moulds["composite_fraction"] else {}),
+                   if self.moulds["composite_fraction"] and self.moulds["lab_fraction"] else {}),
                 "solver": self.solver()[0],
                 "budget": self.solver()[1], "ftol": FTOL,
                 "replicas": _plain(self.simulation["replicas"])}
