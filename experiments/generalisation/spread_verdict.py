@@ -7,8 +7,8 @@ expected fields exceeds one simulation's (novelty.py's `bad`). Where that scatte
 reproducibility, the RMS of the spread map over the tissue pixels (as `condor predict` prints
 it, condor.surrogate.answer.mould_summary). For every model x test mould of novelty.py's table
 (`--table`, e.g. rim_n500/novelty_moulds.csv; the models found in --cache by their names), this
-computes the reproducibility, then the AUROC of each score for `bad` and the share caught at
-20% false alarms:
+computes the reproducibility, then each score's AUROC for `bad`, the share caught at 20%
+false alarms and the false alarms at 90% caught (novelty.py's `flagging`):
 
 - the feature distance (the shipped verdict's score);
 - 1 / reproducibility (a tight predicted scatter: likely above it);
@@ -33,6 +33,7 @@ from condor.surrogate.predict import Predictor
 from condor.surrogate.samples import model_inputs
 
 import run as study  # noqa: E402  (this folder's study, on sys.path as for any script)
+from novelty import flagging  # noqa: E402  (this folder's novelty.py: AUROC, caught at 20%)
 
 FRESH = "fresh seed"
 
@@ -50,20 +51,6 @@ def reproducibility(checkpoint: Path, ds) -> pd.DataFrame:
     rms = [float(np.sqrt((out.spread[k][:, out.normalised[k, 0] > 0] ** 2).mean()))
            for k in range(len(ids))]
     return pd.DataFrame({"mould": ids, "reproducibility": rms})
-
-
-def auroc(score, bad) -> float:
-    """P(score of a bad mould > score of a good one), ties halved (the rank-sum form)."""
-    bad = np.asarray(bad, bool)
-    ranks = pd.Series(np.asarray(score, float)).rank().to_numpy()
-    n1, n0 = bad.sum(), (~bad).sum()
-    return float((ranks[bad].sum() - n1 * (n1 + 1) / 2) / (n1 * n0))
-
-
-def caught_at(score, bad, false_alarms: float = 0.2) -> float:
-    """The share of bad moulds above the threshold that flags `false_alarms` of the good."""
-    bad, score = np.asarray(bad, bool), np.asarray(score, float)
-    return float((score[bad] > np.quantile(score[~bad], 1 - false_alarms)).mean())
 
 
 def main(argv=None) -> int:
@@ -97,10 +84,9 @@ def main(argv=None) -> int:
                         ("moulds of the held-out kinds", rows[rows["held_out_mould"]]),
                         *[(f"held out {h}", g) for h, g in rows.groupby("held_out")]]:
         for score in scores:
-            summary.append({"scope": scope, "score": score, "n_bad": int(part["bad"].sum()),
-                            "n_good": int((~part["bad"]).sum()),
-                            "auroc": auroc(part[score], part["bad"]),
-                            "caught_at_20pct_false_alarms": caught_at(part[score], part["bad"])})
+            summary.append({"scope": scope, "score": score,
+                            **flagging(part[score].to_numpy(float),
+                                       part["bad"].to_numpy(bool))})
     summary = pd.DataFrame(summary)
     a.out.parent.mkdir(parents=True, exist_ok=True)
     summary.to_csv(a.out, index=False)
