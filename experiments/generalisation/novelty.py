@@ -1,5 +1,6 @@
-"""Which novelty score tells a surrogate's bad moulds: the three of condor.surrogate.novelty
-(feature distance, transform disagreement, descriptor distance), computed for every model of
+"""Which novelty score tells a surrogate's bad moulds: the four of condor.surrogate.novelty
+(feature distance, transform disagreement, descriptor distance, and one over the prediction's
+own reproducibility, inverse_spread), computed for every model of
 run.py on every test mould, against whether the model's error on the mould exceeds one
 simulation's scatter (moulds.csv: squared_error > noise).
 
@@ -72,6 +73,17 @@ def scores_of(predictor: Predictor, ds, ids, cache: Path, tag: str) -> dict:
     return out
 
 
+def inverse_spread_of(predictor: Predictor, ds, ids) -> np.ndarray:
+    """condor.surrogate.novelty.inverse_spread of the checkpoint's predictions of moulds `ids`
+    of ds (replica 0), as `condor predict` computes it."""
+    position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
+    pos = [position[int(m)] for m in ids]
+    lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
+    out = predictor(model_inputs(ds, pos, "mask"), n_cells=np.asarray(ds["n_cells"].values)[pos],
+                    lattice=lattice)
+    return novelty.inverse_spread(out.spread, out.normalised)
+
+
 def flagging(score: np.ndarray, bad: np.ndarray) -> dict:
     """AUROC of `score` for `bad`, the share of bad caught at <= 20% false alarms, and the
     false alarms at >= 90% caught."""
@@ -132,6 +144,8 @@ def main(argv=None) -> int:
             part["disagreement"] = s["disagreement"]
             part["descriptor_distance"] = novelty.knn_distance(bank["descriptors"],
                                                                s["descriptors"])
+            part["inverse_spread"] = inverse_spread_of(predictor, store,
+                                                       subset["mould"].to_numpy())
             rows.append(part)
         log(f"novelty of {name}")
     table = pd.concat(rows, ignore_index=True)
@@ -141,15 +155,17 @@ def main(argv=None) -> int:
     summary = []
     for scope, frame in (("every model x test mould", table),
                          ("leave-one-out models", table[table["held_out"] != "none"])):
-        for score in ("feature_distance", "disagreement", "descriptor_distance"):
+        for score in ("feature_distance", "disagreement", "descriptor_distance",
+                      "inverse_spread"):
             summary.append({"scope": scope, "score": score,
                             **flagging(frame[score].to_numpy(), frame["bad"].to_numpy())})
     summary = pd.DataFrame(summary)
     summary.to_csv(a.out / "novelty.csv", index=False)
     print(summary.to_string(index=False))
     lofo = table[table["held_out"] != "none"]
-    chosen = summary[summary["scope"] == "leave-one-out models"].sort_values(
-        "auroc", ascending=False).iloc[0]["score"]
+    chosen = summary[(summary["scope"] == "leave-one-out models")
+                     & summary["score"].isin(novelty.SCORES)].sort_values(
+        "auroc", ascending=False).iloc[0]["score"]  # among those `condor predict` computes
     calibration, threshold, rates = calibrate(lofo, chosen)
     calibration.to_csv(a.out / "novelty_calibration.csv", index=False)
     (a.out / "novelty_choice.json").write_text(json.dumps(

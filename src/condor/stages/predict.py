@@ -105,9 +105,9 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
                            f"{mould} as a mould file or a picture of it (JSON, SVG, DXF, PNG, "
                            "TIFF, JPEG), not its masks")
     inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
-    if bank is not None:
-        verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
+    if bank is not None:
+        verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice, prediction)
     scale = placement.scale if placement is not None else 1.0
     table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale)
     if out.suffix.lower() == ".png":
@@ -193,27 +193,40 @@ def mould_domain_verdict(mould, scene: Scene) -> str:
                       f"{measured.experiment} at {measured.commit}")
 
 
-def mould_novelty_verdict(predictor, bank: dict, inputs, lattice) -> tuple[str, dict]:
+def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
+                          prediction) -> tuple[str, dict]:
     """How new the mould is to the checkpoint (condor.surrogate.novelty: its features' distance
-    to the training moulds'), and what was measured on moulds that new: the verdict's two
-    lines and its numbers (condor.findings' "novelty", experiments/generalisation)."""
+    to the training moulds') and the verdict of the shipped calibration (condor.findings'
+    "novelty", experiments/generalisation): by the score it calibrates, the feature distance or
+    inverse_spread (one over the prediction's reproducibility), with what was measured on
+    moulds of that score: the verdict's lines and its numbers."""
     from condor.surrogate.novelty import (
-        mould_novelty, network_inputs, novelty_verdict, unseen_kinds_sentence,
+        SCORES, inverse_spread, mould_novelty, network_inputs, novelty_verdict,
+        unseen_kinds_sentence,
     )
 
     x = network_inputs(predictor.inputs_kind, np.asarray(inputs)[None],
                        None if lattice is None else np.asarray(lattice).reshape(
                            (1,) + np.shape(inputs)))
-    score = float(mould_novelty(predictor.model, predictor.inputs_kind, bank, x)[0])
+    distance = float(mould_novelty(predictor.model, predictor.inputs_kind, bank, x)[0])
     finding = load_findings().get("novelty")
     if finding is None:  # a package without the calibration
-        return (f"novelty {score:.2f} (1 is typical of its training moulds; not calibrated)",
-                {"novelty": score})
-    if finding.values["score"] != "feature_distance":
-        raise ValueError(f"condor.findings' novelty calibrates {finding.values['score']!r}; "
-                         "predict computes the feature distance (condor.surrogate.novelty)")
+        return (f"novelty {distance:.2f} (1 is typical of its training moulds; not calibrated)",
+                {"novelty": distance})
+    name = finding.values["score"]
+    if name not in SCORES:
+        raise ValueError(f"condor.findings' novelty calibrates {name!r}; predict computes "
+                         f"{SCORES} (condor.surrogate.novelty)")
+    if name == "inverse_spread" and prediction.spread is None:
+        return (f"novelty {distance:.2f} (1 is typical of its training moulds; the verdict "
+                "reads the spread map, which this checkpoint does not predict)",
+                {"novelty": distance})
+    score = distance if name == "feature_distance" else float(
+        inverse_spread(np.asarray(prediction.spread)[None],
+                       np.asarray(prediction.normalised)[None])[0])
     text, numbers = novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
-                                    f"{finding.experiment} at {finding.commit}")
+                                    f"{finding.experiment} at {finding.commit}", name,
+                                    distance)
     measured = load_findings().get("generalisation")
     unseen = None if measured is None else unseen_kinds_sentence(
         measured.frame(), f"{measured.experiment} at {measured.commit}")

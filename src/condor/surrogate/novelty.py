@@ -13,6 +13,12 @@ chose among them by how well each flags the moulds whose error exceeds one simul
 
 A checkpoint trained by condor carries its training moulds' feature vectors and descriptors
 (`condor.surrogate.train` stores them: `bank`), so `condor predict` scores a new mould alone.
+
+A fourth score is no distance at all: `inverse_spread`, one over the prediction's own
+reproducibility (the spread map's RMS over the tissue, as `condor predict` prints it). Whether
+the surrogate's error exceeds one simulation's scatter depends mostly on how small that scatter
+is, and the spread map predicts it: measured on the held-out kinds it tells those moulds far
+better than the distances (experiments/generalisation, "The predicted scatter as a verdict").
 """
 
 from __future__ import annotations
@@ -211,31 +217,64 @@ def training_ranges(bank: dict):
                           source=f"its {len(d)} training moulds")
 
 
+SCORES = ("feature_distance", "inverse_spread")  # the scores `condor predict` can compute
+
+
+def inverse_spread(spread, normalised) -> np.ndarray:
+    """(S,) one over the RMS of each prediction's spread map (S, 8, H, W) over its tissue pixels
+    (normalised P > 0): mould_summary's reproducibility, reversed, so that a larger score is a
+    tighter predicted scatter (one simulation's, which the surrogate's error more easily
+    exceeds); NaN where a prediction covers no pixel."""
+    spread = np.asarray(spread, dtype=np.float64)
+    tissue = np.asarray(normalised)[:, 0] > 0
+    out = np.full(len(spread), np.nan)
+    for k in range(len(spread)):
+        if tissue[k].any():
+            out[k] = 1.0 / math.sqrt(float((spread[k][:, tissue[k]] ** 2).mean()))
+    return out
+
+
 def mould_novelty(model, inputs_kind: str, bank: dict, x: np.ndarray) -> np.ndarray:
     """(S,) feature distance (module docs) of network inputs x (S, C, H, W) to the bank."""
     return knn_distance(bank["features"], features(model, inputs_kind, x))
 
 
 def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
-                    provenance: str) -> tuple[str, dict]:
-    """Two short lines on a mould's novelty `score`: inside or outside (above `threshold`),
-    and the error measured on moulds of that novelty (the bin of `calibration` it falls in);
-    and the numbers, for the prediction's attributes."""
+                    provenance: str, name: str = "feature_distance",
+                    distance: float | None = None) -> tuple[str, dict]:
+    """Short lines on a mould's calibrated `score` (`name`: "feature_distance", its novelty, or
+    "inverse_spread", one over its predicted reproducibility; the feature `distance` beside the
+    latter): inside or outside (above `threshold`), and the error measured on moulds of that
+    score (the bin of `calibration` it falls in); and the numbers, for the prediction's
+    attributes."""
     rows = calibration.sort_values("score_lo").reset_index(drop=True)
     k = int(np.clip(np.searchsorted(rows["score_hi"].to_numpy(), score), 0, len(rows) - 1))
     row = rows.iloc[k]
     outside = score > threshold
-    state = ("OUTSIDE what it learnt: check it by simulation (--check 4)" if outside else
-             "inside what it learnt")
-    numbers = {"novelty": float(score), "threshold": float(threshold), "outside": bool(outside),
+    numbers = {"score": name, "threshold": float(threshold), "outside": bool(outside),
                "expected_error_ratio": float(row.ratio_median),
                "expected_error_ratio_lo": float(row.ratio_lo),
                "expected_error_ratio_hi": float(row.ratio_hi)}
-    text = (f"novelty {score:.2f} (1 is typical of its training moulds, flagged above "
-            f"{threshold:.2g}): {state}\n  moulds this new lay {row.ratio_median:.2g}x "
-            f"[{row.ratio_lo:.2g}, {row.ratio_hi:.2g}] one simulation's scatter from their "
-            f"expected fields, {row.share_above_ceiling:.0%} above it ({provenance})")
-    return text, numbers
+    measured = (f"moulds {'this new' if name == 'feature_distance' else 'this tight'} lay "
+                f"{row.ratio_median:.2g}x [{row.ratio_lo:.2g}, {row.ratio_hi:.2g}] one "
+                f"simulation's scatter from their expected fields, "
+                f"{row.share_above_ceiling:.0%} above it ({provenance})")
+    if name == "feature_distance":
+        numbers["novelty"] = float(score)
+        state = ("OUTSIDE what it learnt: check it by simulation (--check 4)" if outside else
+                 "inside what it learnt")
+        return (f"novelty {score:.2f} (1 is typical of its training moulds, flagged above "
+                f"{threshold:.2g}): {state}\n  {measured}"), numbers
+    numbers["inverse_spread"] = float(score)
+    if distance is not None:
+        numbers["novelty"] = float(distance)
+    state = ("TIGHT: one simulation strays so little that the surrogate's error likely "
+             "exceeds it: check it by simulation (--check 4)" if outside else
+             "its error is likely within one simulation's scatter")
+    new = "" if distance is None else (f"novelty {distance:.2f} (1 is typical of its "
+                                       "training moulds); ")
+    return (f"{new}predicted scatter {1 / score:.3g} (flagged below {1 / threshold:.3g}): "
+            f"{state}\n  {measured}"), numbers
 
 
 def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str) -> str | None:
