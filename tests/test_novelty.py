@@ -73,3 +73,35 @@ def test_the_unseen_kinds_line_reads_only_the_held_out_rows():
     assert "median of 7% over 4 families, up to -12% (family annulus)" in line
     assert "study at abc" in line and "--check 4" in line
     assert unseen_kinds_sentence(table[table["family"] == "paper"], "x") is None
+
+
+def test_inverse_spread_is_one_over_the_spread_maps_rms_over_the_tissue():
+    rng = np.random.default_rng(4)
+    spread = rng.uniform(0.01, 0.2, size=(2, 8, 6, 6))
+    normalised = np.zeros((2, 8, 6, 6))
+    normalised[0, 0, 1:4, 2:5] = 1.0  # 9 tissue pixels
+    by_hand = 1 / np.sqrt(np.mean([spread[0, f, y, x] ** 2 for f in range(8)
+                                   for y in range(1, 4) for x in range(2, 5)]))
+    got = novelty.inverse_spread(spread, normalised)
+    assert got[0] == pytest.approx(by_hand) and np.isnan(got[1])  # no tissue: no score
+
+
+def test_the_scatter_verdict_flags_tight_moulds_with_the_error_measured_that_tight():
+    import pandas as pd
+
+    calibration = pd.DataFrame({"score_lo": [-np.inf, 10.0, 20.0], "score_hi": [10.0, 20.0, np.inf],
+                                "n_moulds": [5, 5, 5], "ratio_median": [0.4, 0.8, 1.5],
+                                "ratio_lo": [0.1, 0.3, 0.9], "ratio_hi": [0.7, 1.2, 2.5],
+                                "share_above_ceiling": [0.0, 0.2, 0.8]})
+    tight, numbers = novelty.novelty_verdict(25.0, calibration, 20.0, "here", "inverse_spread",
+                                             1.1)
+    assert "TIGHT" in tight and "tightness 25 " in tight
+    assert "flagged above 20)" in tight and "novelty 1.10" in tight
+    assert "lay 1.5x [0.9, 2.5]" in tight and "80% above it" in tight
+    assert numbers["outside"] and numbers["expected_error_ratio"] == 1.5
+    assert numbers["inverse_spread"] == 25.0 and numbers["novelty"] == 1.1
+    loose, numbers = novelty.novelty_verdict(12.0, calibration, 20.0, "here", "inverse_spread")
+    assert "TIGHT" not in loose and "within one simulation's scatter" in loose
+    assert not numbers["outside"] and numbers["expected_error_ratio"] == 0.8
+    new, numbers = novelty.novelty_verdict(12.0, calibration, 20.0, "here")  # the distance
+    assert "OUTSIDE" not in new and numbers["novelty"] == 12.0
