@@ -4,7 +4,9 @@ checkpoint").
 
 For every replicated mould of each store: its novelty (condor.surrogate.novelty's feature
 distance to the checkpoint's own training bank, as `condor predict` computes it), the
-verdict (above the shipped threshold: OUTSIDE) and its error over one simulation's scatter
+predicted scatter's inverse_spread, each verdict (the shipped calibration's score above its
+threshold; the feature distance above its former threshold, 1.34) and the error over one
+simulation's scatter
 against the expected fields (noise removed; run.per_mould). Prints, per store, how many moulds
 lie above one simulation's scatter and how many of those the verdict flags (caught), and how
 many of the others it flags (false alarms); writes every mould with --out.
@@ -27,11 +29,13 @@ from condor.findings import load_findings
 from condor.moulds.mould import PAPER
 from condor.studies.recipes import reference_ensemble
 from condor.studies.scoring import predict_replica_moulds
-from condor.surrogate.novelty import bank_of, mould_novelty, network_inputs
+from condor.surrogate.novelty import bank_of, inverse_spread, mould_novelty, network_inputs
 from condor.surrogate.predict import Predictor
 from condor.surrogate.samples import model_inputs
 
 import run as study  # noqa: E402  (this folder's study, on sys.path as for any script)
+
+FEATURE_THRESHOLD = 1.3425829998344263  # the feature distance's calibrated threshold (9b32aad)
 
 
 def store_rows(checkpoint: Path, path: Path, predictor, bank) -> pd.DataFrame:
@@ -47,6 +51,9 @@ def store_rows(checkpoint: Path, path: Path, predictor, bank) -> pd.DataFrame:
     lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
     x = network_inputs(predictor.inputs_kind, model_inputs(ds, pos, "mask"), lattice)
     rows["novelty"] = mould_novelty(predictor.model, predictor.inputs_kind, bank, x)
+    out = predictor(model_inputs(ds, pos, "mask"), n_cells=np.asarray(ds["n_cells"].values)[pos],
+                    lattice=lattice)
+    rows["inverse_spread"] = inverse_spread(out.spread, out.normalised)
     rows["ratio"] = np.sqrt(rows["squared_error"].clip(lower=0) / rows["noise"])
     rows["store"] = str(path)
     rows["source"] = np.where(rows["family"] == PAPER, "paper", "lab")
@@ -63,16 +70,25 @@ def main(argv=None) -> int:
     bank = bank_of(predictor.state)
     if bank is None:
         raise SystemExit(f"{a.checkpoint} carries no training bank (trained before novelty)")
-    threshold = float(load_findings()["novelty"].values["threshold"])
     rows = pd.concat([store_rows(a.checkpoint, p, predictor, bank) for p in a.store],
                      ignore_index=True)
-    rows["outside"] = rows["novelty"] > threshold
-    for (store, source), g in rows.groupby(["store", "source"]):
-        bad = g["ratio"] > 1
-        print(f"{store} {source}: {len(g)} moulds, {int(bad.sum())} above one simulation's "
-              f"scatter, {int((g['outside'] & bad).sum())} of them flagged; "
-              f"{int((g['outside'] & ~bad).sum())} of the {int((~bad).sum())} others flagged; "
-              f"novelty median {g['novelty'].median():.2f}")
+    finding = load_findings()["novelty"]
+    # the shipped verdict's score and threshold, and the feature distance's of 9b32aad's
+    # calibration (its threshold 1.34) beside it
+    verdicts = {finding.values["score"]: float(finding.values["threshold"]),
+                "feature_distance": FEATURE_THRESHOLD}
+    column = {"feature_distance": "novelty", "inverse_spread": "inverse_spread"}
+    for score, threshold in verdicts.items():
+        rows[f"flagged_{score}"] = rows[column[score]] > threshold
+        for (store, source), g in rows.groupby(["store", "source"]):
+            bad, flag = g["ratio"] > 1, g[f"flagged_{score}"]
+            print(f"{score} > {threshold:.3g}: {store} {source}: {len(g)} moulds, "
+                  f"{int(bad.sum())} above one simulation's scatter, {int((flag & bad).sum())} "
+                  f"of them flagged; {int((flag & ~bad).sum())} of the {int((~bad).sum())} "
+                  "others flagged")
+        bad, flag = rows["ratio"] > 1, rows[f"flagged_{score}"]
+        print(f"{score}: all {len(rows)}: {int((flag & bad).sum())} of {int(bad.sum())} caught, "
+              f"{int((flag & ~bad).sum())} of {int((~bad).sum())} false alarms")
     if a.out is not None:
         rows.to_csv(a.out, index=False)
     return 0
