@@ -77,8 +77,12 @@ def main(argv=None) -> int:
         "commit": a.commit,
     }
     findings["novelty"] = {
-        "question": "How new is a mould to the surrogate, and how far off are its predictions "
-                    "on moulds that new (the error over one simulation's scatter, by novelty)?",
+        "question": ("How new is a mould to the surrogate, and how far off are its "
+                     "predictions on moulds that new (the error over one simulation's scatter, "
+                     "by novelty)?" if choice["score"] == "feature_distance" else
+                     "Is the surrogate's error on a mould likely within one simulation's "
+                     "scatter, read from how tight its own predicted scatter is (the error over "
+                     "one simulation's scatter, by inverse_spread)?"),
         "table": "novelty.csv",
         "experiment": "experiments/generalisation",
         "source": f"{where}/novelty_calibration.csv (novelty.py: the "
