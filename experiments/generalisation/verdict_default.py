@@ -28,7 +28,6 @@ from condor.data.store import open_store
 from condor.findings import load_findings
 from condor.moulds.mould import PAPER
 from condor.studies.recipes import reference_ensemble
-from condor.studies.scoring import predict_replica_moulds
 from condor.surrogate.novelty import bank_of, inverse_spread, mould_novelty, network_inputs
 from condor.surrogate.predict import Predictor
 from condor.surrogate.samples import model_inputs
@@ -38,21 +37,20 @@ import run as study  # noqa: E402  (this folder's study, on sys.path as for any 
 FEATURE_THRESHOLD = 1.3425829998344263  # the feature distance's calibrated threshold (9b32aad)
 
 
-def store_rows(checkpoint: Path, path: Path, predictor, bank) -> pd.DataFrame:
+def store_rows(path: Path, predictor, bank) -> pd.DataFrame:
     ds = open_store(path)
     ids = [int(i) for i in study.first_replicas(ds, "test")]
     ensemble = reference_ensemble(ds, ids)
     family = study.families_of(ds)
     labels = [str(family[int(m)]) for m in ensemble.moulds]
-    raw = predict_replica_moulds(checkpoint, ds, ensemble.moulds)
-    rows = study.per_mould(ensemble, raw, labels)
     position = {int(m): i for i, m in enumerate(np.asarray(ds["sample"].values))}
     pos = [position[int(m)] for m in ensemble.moulds]
+    masks = model_inputs(ds, pos, "mask")
     lattice = model_inputs(ds, pos, "lattice") if predictor.needs_lattice else None
-    x = network_inputs(predictor.inputs_kind, model_inputs(ds, pos, "mask"), lattice)
+    out = predictor(masks, n_cells=np.asarray(ds["n_cells"].values)[pos], lattice=lattice)
+    rows = study.per_mould(ensemble, out.raw.astype(np.float64), labels)
+    x = network_inputs(predictor.inputs_kind, masks, lattice)
     rows["novelty"] = mould_novelty(predictor.model, predictor.inputs_kind, bank, x)
-    out = predictor(model_inputs(ds, pos, "mask"), n_cells=np.asarray(ds["n_cells"].values)[pos],
-                    lattice=lattice)
     rows["inverse_spread"] = inverse_spread(out.spread, out.normalised)
     rows["ratio"] = np.sqrt(rows["squared_error"].clip(lower=0) / rows["noise"])
     rows["store"] = str(path)
@@ -70,7 +68,7 @@ def main(argv=None) -> int:
     bank = bank_of(predictor.state)
     if bank is None:
         raise SystemExit(f"{a.checkpoint} carries no training bank (trained before novelty)")
-    rows = pd.concat([store_rows(a.checkpoint, p, predictor, bank) for p in a.store],
+    rows = pd.concat([store_rows(p, predictor, bank) for p in a.store],
                      ignore_index=True)
     finding = load_findings()["novelty"]
     # the shipped verdict's score and threshold, and the feature distance's of 9b32aad's

@@ -198,7 +198,7 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
     """How new the mould is to the checkpoint (condor.surrogate.novelty: its features' distance
     to the training moulds') and the verdict of the shipped calibration (condor.findings'
     "novelty", experiments/generalisation): by the score it calibrates, the feature distance or
-    inverse_spread (one over the prediction's reproducibility), with what was measured on
+    inverse_spread (one over the RMS of the prediction's spread map), with what was measured on
     moulds of that score: the verdict's lines and its numbers."""
     from condor.surrogate.novelty import (
         SCORES, inverse_spread, mould_novelty, network_inputs, novelty_verdict,

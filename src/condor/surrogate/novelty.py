@@ -16,9 +16,8 @@ A checkpoint trained by condor carries its training moulds' feature vectors and 
 
 A fourth score is no distance at all: `inverse_spread`, one over the RMS of the prediction's
 own spread map over the tissue (in raw units: the printed reproducibility times N_c over the
-grid's pixels). Whether
-the surrogate's error exceeds one simulation's scatter depends mostly on how small that scatter
-is, and the spread map predicts it: measured on the held-out kinds it tells those moulds far
+grid's pixels). Whether the surrogate's error exceeds one simulation's scatter depends mostly
+on how small that scatter is, and the spread map predicts it: measured on the held-out kinds it tells those moulds far
 better than the distances (experiments/generalisation, "The predicted scatter as a verdict").
 """
 
@@ -247,7 +246,7 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
                     provenance: str, name: str = "feature_distance",
                     distance: float | None = None) -> tuple[str, dict]:
     """Short lines on a mould's calibrated `score` (`name`: "feature_distance", its novelty, or
-    "inverse_spread", one over its predicted reproducibility; the feature `distance` beside the
+    "inverse_spread", one over the RMS of its spread map; the feature `distance` beside the
     latter): inside or outside (above `threshold`), and the error measured on moulds of that
     score (the bin of `calibration` it falls in); and the numbers, for the prediction's
     attributes."""
