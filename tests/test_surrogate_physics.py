@@ -21,8 +21,8 @@ from condor.surrogate.checkpoint import CheckpointMismatchError, load_checkpoint
 from condor.surrogate.samples import FIELD_NAMES, apply_symmetry, usable_samples
 from condor.surrogate.networks import UNetConfig, UNetGenerator
 from condor.data.statistics import mould_statistics
-from condor.surrogate.physics import (PhysicsHead, area_threshold_per_pixel, estimate_n_cells,
-                                      n_cells_of_mould)
+from condor.surrogate.physics import (NOISE_WEIGHT_RANGE, PhysicsHead, area_threshold_per_pixel,
+                                      estimate_n_cells, n_cells_of_mould)
 from condor.surrogate.predict import Predictor, predict
 from condor.surrogate.prediction_zarr import write_prediction
 from condor.surrogate.synthetic import synthetic_dataset
@@ -182,6 +182,39 @@ def test_tension_floor_weighs_each_moulds_tension_error_by_its_own_tension():
             TrainConfig(network="unet", head="physics", loss="gaussian", tension_floor=bad)
     with pytest.raises(ValueError, match="needs head 'physics'"):
         TrainConfig(network="unet", loss="mse", tension_floor=0.5)
+
+
+def test_noise_weight_weighs_each_moulds_error_against_its_predicted_noise():
+    """The mean's term against a numpy sum: each mould's squared error times its predicted
+    noise (the mean of (spread / scale)^2) to the power -noise_weight, over the batch's mean
+    and clipped to NOISE_WEIGHT_RANGE;
+    no gradient through the weights, and noise_weight 0 the plain mean."""
+    rng = np.random.default_rng(5)
+    scale, tau, gamma = np.linspace(0.5, 1.5, 8), 0.02, 1.0
+    out = torch.from_numpy(rng.normal(size=(3, 16, 6, 6)))
+    out[:, 8:] += torch.tensor([-2.0, 0.0, 2.0], dtype=torch.float64)[:, None, None, None]
+    target = torch.from_numpy(np.abs(rng.normal(size=(3, 8, 6, 6))))
+    n_cells = [30.0, 40.0, 50.0]
+    head = PhysicsHead(scale, tau, nll_weight=0.0, noise_weight=gamma)
+    _, parts = head.loss(out, target, n_cells)
+    fields, spread = head.decode(out, torch.tensor(n_cells, dtype=torch.float64),
+                                 calibrated=False)
+    squared = ((fields - target).numpy() / scale[None, :, None, None]) ** 2
+    noise = ((spread.numpy() / scale[None, :, None, None]) ** 2).mean(axis=(1, 2, 3))
+    w = np.clip(noise ** -gamma / np.mean(noise ** -gamma), *NOISE_WEIGHT_RANGE)
+    assert w[0] > w[1] > w[2]  # the quietest mould weighs most
+    assert parts["mse"] == pytest.approx(np.mean(squared.mean(axis=(1, 2, 3)) * w), rel=1e-12)
+    plain = PhysicsHead(scale, tau, nll_weight=0.0)
+    assert plain.loss(out, target, n_cells)[1]["mse"] == pytest.approx(squared.mean(), rel=1e-12)
+    x = out.clone().requires_grad_(True)
+    head.loss(x, target, n_cells)[0].backward()
+    assert torch.all(x.grad[:, 8:] == 0)  # with nll_weight 0 nothing trains the spread
+    assert PhysicsHead.from_dict(head.to_dict()).noise_weight == gamma
+    for bad in (-1.0, float("nan")):
+        with pytest.raises(ValueError, match="noise_weight"):
+            PhysicsHead(scale, tau, noise_weight=bad)
+        with pytest.raises(ValueError, match="TrainConfig.noise_weight"):
+            TrainConfig(network="unet", head="physics", loss="gaussian", noise_weight=bad)
 
 
 @pytest.mark.parametrize("weights, match", [

@@ -51,7 +51,7 @@ from condor.studies.families import family_rows, mean_tension  # noqa: E402
 from condor.studies.recipes import reference_ensemble  # noqa: E402
 from condor.studies.scoring import predict_replica_moulds  # noqa: E402
 from condor.surrogate.train import train as train_loop  # noqa: E402
-from condor.surrogate.variants import train_config, workflow_variants  # noqa: E402
+from condor.surrogate.variants import SETTING_KEYS, train_config, workflow_variants  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
 N_TRAIN = 250  # training moulds of every model (the pool holds 252 of each source)
@@ -236,6 +236,8 @@ def main(argv=None) -> int:
                          "one a lab mould; pool2.yaml's: the model's --lab-share)")
     ap.add_argument("--inputs", default=None,
                     help="what the models read (TrainConfig.inputs; default: the preset's)")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="change a setting of the preset (the value as JSON), e.g. noise_weight=1")
     a = ap.parse_args(argv)
     a.cache.mkdir(parents=True, exist_ok=True)
     config = Config.load(Path(__file__).resolve().parents[2] / "config" / "config.yaml")
@@ -248,6 +250,12 @@ def main(argv=None) -> int:
     if a.inputs is not None and a.inputs != settings["inputs"]:
         settings = {**settings, "inputs": a.inputs}
         suffix += f"_{a.inputs}"
+    for item in a.set:
+        key, _, value = item.partition("=")
+        if key not in SETTING_KEYS or not value:
+            ap.error(f"--set {item!r}: give KEY=VALUE with KEY one of {SETTING_KEYS}")
+        settings = {**settings, key: json.loads(value)}
+        suffix += f"_{key}{value}"
     test = first_replicas(ds, "test")
     fam = families_of(ds)
     paper_ids = [int(i) for i in test if fam[i] == PAPER]

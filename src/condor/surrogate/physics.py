@@ -66,6 +66,7 @@ SPREAD_FLOOR = 1e-3  # spread floor, in units of the field's RMS (keeps the NLL 
 TENSOR_EPS = 1e-4  # isotropic part of Q, keeps the trace positive
 SUM_FLOOR = 0.05  # tension per cell, in units of tau_0, below which sum(T)'s error is absolute
 SUM_HUBER = 0.1  # relative sum(T) error above which its loss grows linearly
+NOISE_WEIGHT_RANGE = (0.1, 10.0)  # a mould's noise weight against the batch mean (noise_weight)
 AREA_WIDTH = 0.125  # width of the soft area count's sigmoid, in units of the threshold
 CALIBRATION_LEVEL = 0.9  # the interval whose coverage calibrate_spread matches
 TISSUE_REACH_PX = 3  # pixels beyond the mould within which fields are non-zero (kernel reach)
@@ -85,7 +86,7 @@ class PhysicsHead:
     def __init__(self, field_scale, tension_scale: float, nll_weight: float = 1.0,
                  spread_factor=None, sum_weight: float = 0.0, field_weights=None,
                  area_weight: float = 0.0, area_threshold: float | None = None,
-                 tension_floor: float | None = None):
+                 tension_floor: float | None = None, noise_weight: float = 0.0):
         self.field_scale = np.asarray(field_scale, dtype=np.float64)
         self.field_weights = check_field_weights(
             np.ones(len(FIELD_NAMES)) if field_weights is None else field_weights)
@@ -95,6 +96,9 @@ class PhysicsHead:
         self.nll_weight = float(nll_weight)
         self.sum_weight = float(sum_weight)
         self.tension_floor = None if tension_floor is None else float(tension_floor)
+        self.noise_weight = float(noise_weight)
+        if not (np.isfinite(self.noise_weight) and self.noise_weight >= 0):
+            raise ValueError(f"noise_weight must be finite and >= 0, got {noise_weight}")
         if self.tension_floor is not None and not (np.isfinite(self.tension_floor)
                                                    and self.tension_floor > 0):
             raise ValueError(f"tension_floor must be finite and > 0 (in units of tau_0), got "
@@ -168,7 +172,10 @@ class PhysicsHead:
             t = _IDX["T"]
             squared = torch.cat([squared[:, :t], squared[:, t:t + 1] * self.tension_weights(
                 target, n_cells)[:, None, None, None], squared[:, t + 1:]], dim=1)
-        mse = squared.mean()
+        if self.noise_weight > 0:
+            mse = (squared.mean(dim=(1, 2, 3)) * self.noise_weights(spread, scale, weights)).mean()
+        else:
+            mse = squared.mean()
         residual = (target - fields).detach()
         z = residual / spread
         nll = (0.5 * z * z + torch.log(spread / scale)).mean()
@@ -204,6 +211,17 @@ class PhysicsHead:
         f = self.tension_floor
         return ((1 + f) / (per_cell.abs() + f)) ** 2
 
+    def noise_weights(self, spread: torch.Tensor, scale: torch.Tensor,
+                      weights: torch.Tensor) -> torch.Tensor:
+        """(B,) weights of each mould's squared error: its predicted noise (the field-weighted
+        mean of (spread / field_scale)^2 over its pixels, detached) to the power -noise_weight,
+        over the batch's mean, clipped to NOISE_WEIGHT_RANGE: with noise_weight 1 the loss
+        weighs each mould's error against its own scatter, as the error / noise ceiling does."""
+        with torch.no_grad():
+            noise = (weights * (spread / scale) ** 2).mean(dim=(1, 2, 3)).clamp_min(1e-12)
+            w = noise ** (-self.noise_weight)
+            return (w / w.mean()).clamp(*NOISE_WEIGHT_RANGE)
+
     def soft_area(self, density: torch.Tensor) -> torch.Tensor:
         """(B, H, W) densities -> (B,) pixels above area_threshold, counted softly (a sigmoid
         AREA_WIDTH x the threshold wide): differentiable, and the hard count as it narrows."""
@@ -215,13 +233,15 @@ class PhysicsHead:
                 "tension_scale": self.tension_scale, "nll_weight": self.nll_weight,
                 "spread_factor": self.spread_factor.tolist(), "sum_weight": self.sum_weight,
                 "field_weights": self.field_weights.tolist(), "area_weight": self.area_weight,
-                "area_threshold": self.area_threshold, "tension_floor": self.tension_floor}
+                "area_threshold": self.area_threshold, "tension_floor": self.tension_floor,
+                "noise_weight": self.noise_weight}
 
     @classmethod
     def from_dict(cls, d: dict) -> "PhysicsHead":
         return cls(d["field_scale"], d["tension_scale"], d.get("nll_weight", 1.0),
                    d.get("spread_factor"), d.get("sum_weight", 0.0), d.get("field_weights"),
-                   d.get("area_weight", 0.0), d.get("area_threshold"), d.get("tension_floor"))
+                   d.get("area_weight", 0.0), d.get("area_threshold"), d.get("tension_floor"),
+                   d.get("noise_weight", 0.0))
 
     def calibrate_spread(self, fields, spread, truth, mask, level: float = CALIBRATION_LEVEL):
         """Set spread_factor so that, per field, the central `level` interval fields -/+ z
@@ -251,7 +271,8 @@ def area_threshold_per_pixel(pixel_size: float) -> float:
 def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
                      sum_weight: float = 0.0, field_weights=None, area_weight: float = 0.0,
                      pixel_size: float | None = None,
-                     tension_floor: float | None = None) -> PhysicsHead:
+                     tension_floor: float | None = None,
+                     noise_weight: float = 0.0) -> PhysicsHead:
     """PhysicsHead scales from the samples `indices` (the training split): each field's RMS
     over all pixels (transpose pairs averaged) and sum(T) / sum(P). pixel_size (l0, of the
     training grid) sets the area threshold (needed with area_weight > 0)."""
@@ -274,7 +295,8 @@ def fit_physics_head(ds, indices, chunk: int = 32, nll_weight: float = 1.0,
     return PhysicsHead(rms, tension if tension != 0 else 1.0, nll_weight, sum_weight=sum_weight,
                        field_weights=field_weights, area_weight=area_weight,
                        area_threshold=None if pixel_size is None
-                       else area_threshold_per_pixel(pixel_size), tension_floor=tension_floor)
+                       else area_threshold_per_pixel(pixel_size), tension_floor=tension_floor,
+                       noise_weight=noise_weight)
 
 
 # --- the cell count N_c -----------------------------------------------------------------------

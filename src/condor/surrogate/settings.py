@@ -194,6 +194,8 @@ class TrainConfig:
     (physics head; 0 leaves it out).
     tension_floor: weigh each mould's T error relative to its own tension per cell, floored at
     this many tau_0 (physics head, PhysicsHead.tension_weights; None: absolute).
+    noise_weight: weigh each mould's squared error by its predicted noise to this power, minus
+    (physics head, PhysicsHead.noise_weights; 0: every mould alike).
     detach_spread: the spread channels read the network's last features without training
     them (UNetConfig.detached_outputs): only the mean's squared error shapes the network.
     replicas: what a training mould with several replicas contributes (REPLICA_USES).
@@ -230,6 +232,7 @@ class TrainConfig:
     field_weights: tuple | None = None
     area_weight: float = 0.0
     tension_floor: float | None = None
+    noise_weight: float = 0.0
     detach_spread: bool = True
     replicas: str = "all"
     lr_schedule: str = "constant"
@@ -263,7 +266,7 @@ class TrainConfig:
         if self.network != "unet" and self.loss != "l1":
             raise ValueError(f"TrainConfig: network {self.network!r} trains on L1; loss "
                              f"{self.loss!r} needs model 'unet'")
-        for name in ("sum_weight", "area_weight"):
+        for name in ("sum_weight", "area_weight", "noise_weight"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"TrainConfig.{name} = {value} must be finite and >= 0")

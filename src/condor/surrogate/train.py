@@ -187,7 +187,7 @@ def output_map(cfg: TrainConfig, ds, train_idx, size: int):
         return fit_physics_head(ds, train_idx, nll_weight=cfg.nll_weight,
                                 sum_weight=cfg.sum_weight, field_weights=cfg.field_weights,
                                 area_weight=cfg.area_weight, pixel_size=pixel,
-                                tension_floor=cfg.tension_floor)
+                                tension_floor=cfg.tension_floor, noise_weight=cfg.noise_weight)
     if cfg.scaling == "standard":
         rms = fit_physics_head(ds, train_idx).field_scale
         return FieldScaling(-rms, rms)

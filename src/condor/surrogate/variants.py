@@ -23,8 +23,8 @@ UNET_KEYS = ("base", "depth", "max_width", "n_dropout", "dropout", "upsample", "
 TRAIN_KEYS = ("epochs", "batch_size", "lr", "betas", "lam", "adversarial_target", "seed",
               "val_every", "max_val_samples", "prediction_mode", "num_threads", "augment",
               "symmetrise", "head", "loss", "scaling", "loss_region", "nll_weight", "sum_weight",
-              "field_weights", "area_weight", "tension_floor", "detach_spread", "replicas",
-              "lr_schedule", "inputs")
+              "field_weights", "area_weight", "tension_floor", "noise_weight", "detach_spread",
+              "replicas", "lr_schedule", "inputs")
 SETTING_KEYS = ("model",) + UNET_KEYS + TRAIN_KEYS
 VARIANT_NAME = re.compile(r"^[A-Za-z][A-Za-z0-9_]*$")  # used in file names and wildcards
 
