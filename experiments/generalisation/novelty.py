@@ -113,10 +113,13 @@ def main(argv=None) -> int:
     ap.add_argument("--extra-share", type=float, default=0.25, help="run.py's --extra-share")
     ap.add_argument("--extra-lab-share", type=float, default=1.0,
                     help="run.py's --extra-lab-share")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="run.py's --set (the models' names follow it)")
     a = ap.parse_args(argv)
     ds, fresh = open_store(a.pool), open_store(a.fresh)
     extra = open_store(a.extra) if a.extra is not None else None
     suffix = f"_extra{a.extra_share:g}" if extra is not None else ""  # run.py's names
+    suffix += study.with_settings({}, a.set)[1]
     per = pd.read_csv(a.out / "moulds.csv")
     rows = []
     for name, spec in study.models(ds, a.lab_share, a.n_train).items():

@@ -212,6 +212,19 @@ def per_mould(ensemble, raw, families) -> pd.DataFrame:
                          "noise": noise, "tension_ratio": tension})
 
 
+def with_settings(settings: dict, items) -> tuple[dict, str]:
+    """settings with run.py's --set KEY=VALUE items applied (VALUE as JSON), and the suffix
+    they add to the models' names (_KEYVALUE each)."""
+    suffix = ""
+    for item in items:
+        key, _, value = item.partition("=")
+        if key not in SETTING_KEYS or not value:
+            raise ValueError(f"--set {item!r}: give KEY=VALUE with KEY one of {SETTING_KEYS}")
+        settings = {**settings, key: json.loads(value)}
+        suffix += f"_{key}{value}"
+    return settings, suffix
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--pool", type=Path, required=True, help="the pool's dataset.zarr")
@@ -250,12 +263,11 @@ def main(argv=None) -> int:
     if a.inputs is not None and a.inputs != settings["inputs"]:
         settings = {**settings, "inputs": a.inputs}
         suffix += f"_{a.inputs}"
-    for item in a.set:
-        key, _, value = item.partition("=")
-        if key not in SETTING_KEYS or not value:
-            ap.error(f"--set {item!r}: give KEY=VALUE with KEY one of {SETTING_KEYS}")
-        settings = {**settings, key: json.loads(value)}
-        suffix += f"_{key}{value}"
+    try:
+        settings, changed = with_settings(settings, a.set)
+    except ValueError as err:
+        ap.error(str(err))
+    suffix += changed
     test = first_replicas(ds, "test")
     fam = families_of(ds)
     paper_ids = [int(i) for i in test if fam[i] == PAPER]
