@@ -50,6 +50,9 @@ PRESETS = MappingProxyType({
         "inputs": "mechanics",              # "The inputs", "A mechanical prior"
         "field_weights": (2, 1, 2, 2, 1, 0.5, 0.5, 0.5), "area_weight": 1.0,  # "Weighing the fields"
         "tension_floor": 0.5,               # "196 moulds": each mould's T error relative to its own
+        # each mould's error against its own predicted scatter, as the noise ceiling scores it
+        # (experiments/generalisation/README.md, "Each mould's error against its own scatter")
+        "noise_weight": 1.0,
         "val_every": 10,                    # a diagnostic: a quarter of each epoch's time saved
     }),
     # the previous default (L1 on [-1, 1]-scaled fields): biased low
