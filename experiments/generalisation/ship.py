@@ -5,7 +5,7 @@ and the fresh seed's) and `novelty` (novelty_calibration.csv and the threshold c
 novelty.py, which `condor predict` reads).
 
   python experiments/generalisation/ship.py --commit COMMIT [--tables n450 --n-train 450 \
-      --lab-share 0.44] [--extra-share 0.2]
+      --lab-share 0.44] [--extra-share 0.2] [--set noise_weight=1]
 
 reads generalisation.csv, novelty.csv and novelty_calibration.csv of --tables (a folder of this
 study: run.py's and novelty.py's outputs; this folder itself by default) and
@@ -46,6 +46,8 @@ def main(argv=None) -> int:
     ap.add_argument("--extra-share", type=float, default=0.0,
                     help="run.py's --extra-share: the share of composite moulds "
                          "(composite_rim.yaml's store) among their training moulds")
+    ap.add_argument("--set", nargs="+", default=[], metavar="KEY=VALUE",
+                    help="run.py's --set: the settings the models changed from the preset")
     a = ap.parse_args(argv)
     tables = (HERE / a.tables).resolve()
     where = tables.relative_to(REPO).as_posix()
@@ -58,6 +60,7 @@ def main(argv=None) -> int:
     choice = json.loads((tables / "novelty_choice.json").read_text())
     n_models = table["held_out"].nunique()
     extra = (f" --extra COMPOSITE_RIM --extra-share {a.extra_share:g}" if a.extra_share else "")
+    extra += f" --set {' '.join(a.set)}" if a.set else ""
     composite = (f" ({round(a.extra_share * a.n_train)} of them composite)" if a.extra_share
                  else "")
     path = FINDINGS / "findings.json"
