@@ -25,11 +25,9 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from condor.data.store import open_store  # noqa: E402
-from condor.measures import estimators as est  # noqa: E402
-from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.studies.families import family_rows  # noqa: E402
 from condor.studies.recipes import reference_ensemble  # noqa: E402
-from condor.studies.scoring import predict_replica_moulds  # noqa: E402
+from condor.studies.scoring import paired_ratio, predict_replica_moulds  # noqa: E402
 
 import run as study  # noqa: E402  (its own folder is on sys.path, as for any script)
 
@@ -54,8 +52,7 @@ def main(argv=None) -> int:
         if not path:
             raise SystemExit(f"--checkpoint {spec!r}: expected NAME=PATH")
         raw = predict_replica_moulds(Path(path), ds, list(ensemble.moulds))
-        errors[name] = est.mse_against_expected(
-            normalise_predicted(raw).astype(np.float64), ensemble.normalised).corrected
+        errors[name] = study.per_mould(ensemble, raw, labels)["squared_error"].to_numpy()
         every = family_rows(ensemble, raw, ["every"] * len(labels), seed=a.seed)
         rows.append(pd.concat([family_rows(ensemble, raw, labels, seed=a.seed), every])
                     .assign(checkpoint=name))
@@ -76,12 +73,7 @@ def main(argv=None) -> int:
 def paired_ratios(errors: dict, against: str, labels: np.ndarray, seed: int) -> pd.DataFrame:
     """Each checkpoint's error over `against`'s, per family, over the lab moulds (every label
     but the paper's) and over every mould: sqrt(mean squared error / theirs), its interval
-    from moulds resampled in pairs."""
-    def ratio(pair: np.ndarray) -> float:
-        base = float(np.mean(pair[:, 0]))
-        return float(np.sqrt(max(float(np.mean(pair[:, 1])), 0.0) / base)) if base > 0 \
-            else float("nan")
-
+    from moulds resampled in pairs (condor.studies.scoring.paired_ratio)."""
     groups = {**{f: labels == f for f in dict.fromkeys(labels)},
               "lab": labels != study.PAPER, "every": np.ones(len(labels), bool)}
     rows = []
@@ -91,8 +83,7 @@ def paired_ratios(errors: dict, against: str, labels: np.ndarray, seed: int) -> 
         for group, mask in groups.items():
             if not mask.any():
                 continue
-            pair = np.stack([errors[against][mask], err[mask]], axis=1)
-            value, lo, hi = est.bootstrap_interval(pair, ratio, seed=seed)
+            value, lo, hi = paired_ratio(errors[against][mask], err[mask], seed=seed)
             rows.append({"checkpoint": name, "against": against, "family": group,
                          "n_moulds": int(mask.sum()), "ratio": value, "ratio_lo": lo,
                          "ratio_hi": hi})

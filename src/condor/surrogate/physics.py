@@ -40,6 +40,11 @@ the absolute error lets the network shrink every mould towards the average tensi
 over-predicts the many low-tension moulds and biases the median of predicted / simulated
 mean T high (docs/surrogate.md "The mould's own tension").
 
+With noise_weight g > 0 each mould's squared error of the mean is weighed by its predicted
+noise (the field-weighted mean of (spread / s_f)^2, detached) to the power -g, over the batch's
+mean and clipped to NOISE_WEIGHT_RANGE: at 1, each mould's error against its own scatter, as
+the noise ceiling scores it (PhysicsHead.noise_weights).
+
 With area_weight > 0 the loss adds, per mould, the relative error of its tissue area, counted
 softly: sum of sigmoid((P - a) / (AREA_WIDTH a)) over the pixels for prediction and target
 alike, a = the paper's N(P>0.2) threshold in cells per training pixel. The squared error of P
