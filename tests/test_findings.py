@@ -38,6 +38,10 @@ def test_a_findings_commit_is_in_the_history_when_the_repository_is_a_clone():
             if shallow.stdout.strip() == "true":
                 pytest.skip("shallow clone")
         assert known.returncode == 0, f"{finding.key}: no commit {finding.commit}"
+        # a commit only on a side branch is in this object store but not in a clone of main
+        ancestor = subprocess.run(["git", "-C", str(REPO), "merge-base", "--is-ancestor",
+                                   finding.commit, "HEAD"], capture_output=True)
+        assert ancestor.returncode == 0, f"{finding.key}: {finding.commit} is not in HEAD's history"
 
 
 def test_the_more_moulds_sentence_is_computed_from_its_table():
