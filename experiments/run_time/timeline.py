@@ -10,6 +10,7 @@ before its `rule` line to the stamp before its `Finished job` line.
 from __future__ import annotations
 
 import argparse
+import gzip
 import collections
 import datetime as dt
 import re
@@ -47,7 +48,8 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("log")
     a = ap.parse_args(argv)
-    with open(a.log) as f:
+    opener = gzip.open if a.log.endswith(".gz") else open
+    with opener(a.log, "rt") as f:
         table = spans(f.read().splitlines())
     print("| rule | jobs | job-seconds | first start (min) | last end (min) |")
     print("| --- | --- | --- | --- | --- |")
