@@ -36,6 +36,7 @@ from condor.surrogate.predict import Predictor  # noqa: E402
 from condor.surrogate.samples import model_inputs  # noqa: E402
 
 HERE = Path(__file__).resolve().parent
+FALSE_ALARMS = 0.2  # the verdict's budget of false alarms (issue 41's goal: 90% caught at 20%)
 import run as study  # noqa: E402  (its own folder is on sys.path, as for any script)
 
 
@@ -182,8 +183,10 @@ def main(argv=None) -> int:
 def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
     """The product's calibration of `score` (condor.findings.NOVELTY_COLUMNS): per quantile bin
     of the score, the error over one simulation's scatter (median, 10-90%) and the share above
-    1; the threshold: the lowest bin edge above which every bin's median error is at least one
-    simulation's scatter, so that "inside" means the moulds of that novelty lay within it
+    1; the threshold: the lowest score that raises at most FALSE_ALARMS of false alarms (the
+    issue's budget), or, where that is higher, the lowest bin edge above which every bin's
+    median error is at least one simulation's scatter (the rule before 2026-12-07, kept in
+    `threshold_median_rule`), so that "inside" means the moulds of that novelty lay within it
     (issue 41); with the share of the moulds above the scatter it flags and the false alarms,
     and, for comparison, the false alarms of the lowest threshold that flags 90% of them."""
     values = frame[score].to_numpy()
@@ -204,15 +207,18 @@ def calibrate(frame: pd.DataFrame, score: str, bins: int = 6):
     k = len(above)
     while k > 0 and above[k - 1]:
         k -= 1
-    threshold = float(table["score_lo"].iloc[k]) if k < len(above) else float("inf")
+    median_rule = float(table["score_lo"].iloc[k]) if k < len(above) else float("inf")
 
     def rates(t):
         return (float((values[bad] > t).mean()), float((values[~bad] > t).mean()))
+    budget = min((t for t in np.unique(values) if rates(t)[1] <= FALSE_ALARMS), default=np.inf)
+    threshold = min(median_rule, float(budget))
     caught, alarms = rates(threshold)
     at_90 = min((t for t in np.unique(values) if rates(t)[0] >= 0.9), key=lambda t: rates(t)[1])
     return (table, threshold,
             {"caught": caught, "false_alarms": alarms, "n_bad": int(bad.sum()),
-             "n_good": int((~bad).sum()), "threshold_at_90pct_caught": float(at_90),
+             "n_good": int((~bad).sum()), "threshold_median_rule": median_rule,
+             "threshold_at_90pct_caught": float(at_90),
              "false_alarms_at_90pct_caught": rates(at_90)[1]})
 
 

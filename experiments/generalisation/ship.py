@@ -90,7 +90,10 @@ def main(argv=None) -> int:
         "experiment": "experiments/generalisation",
         "source": f"{where}/novelty_calibration.csv (novelty.py: the "
                   f"{choice['score']} of {choice['n_moulds']} test moulds under the "
-                  f"{n_models} leave-one-kind-out models; above the threshold "
+                  f"{n_models} leave-one-kind-out models; above the threshold"
+                  + (" (the lowest that raises at most 20% false alarms)"
+                     if choice["threshold"] < choice.get("threshold_median_rule", 0) else "")
+                  + " "
                   f"{choice['caught']:.0%} of the moulds above one simulation's scatter are "
                   f"flagged, at {choice['false_alarms']:.0%} false alarms)",
         "commit": a.commit,

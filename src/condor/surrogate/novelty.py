@@ -271,8 +271,8 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
     numbers["inverse_spread"] = float(score)
     if distance is not None:
         numbers["novelty"] = float(distance)
-    state = ("TIGHT: one simulation strays so little that the surrogate's error likely "
-             "exceeds it: check it by simulation (--check 4)" if outside else
+    state = ("TIGHT: one simulation strays so little that the surrogate's error may exceed "
+             "it: check it by simulation (--check 4)" if outside else
              "its error is likely within one simulation's scatter")
     new = "" if distance is None else (f"novelty {distance:.2f} (1 is typical of its "
                                        "training moulds); ")
