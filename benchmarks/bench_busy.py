@@ -1,13 +1,18 @@
 """Training beside other work: a training step's time alone and beside CPU-bound competitors.
 
-Each setting (torch threads, OpenMP wait policy) trains the default run's network (`unet`
-preset's U-Net at the default scene's 64 px, batch 8, Adam) in a fresh process, so that the
-wait policy is read when the OpenMP runtime loads. Alone, then beside --competitors processes
-that each spin one core, then alone again; the settings interleaved round by round. Prints the
-median seconds a step of each setting alone and beside them, and their ratio, with the range
-over rounds.
+Each setting (torch threads, how OpenMP's threads wait) trains in a fresh process, so that the
+wait is read when the OpenMP runtime loads: the default run's network alone (`unet` preset's
+U-Net at the default scene's 64 px, batch 8, Adam, a squared error), or with --store the whole
+training loop (`condor train` of the default variant on that store: the physics head, the
+symmetries, the inputs; the seconds of its first epoch). Alone, then beside
+--competitors processes that each spin one core; the settings interleaved round by round.
+Prints the median seconds a step of each setting alone and beside them, and their ratio, with
+the range over rounds.
 
-    python benchmarks/bench_busy.py [--rounds 3] [--steps 20] [--competitors 1]
+    python benchmarks/bench_busy.py [--rounds 3] [--steps 20] [--competitors 1] [--store S]
+
+"auto" is condor's own choice (condor.openmp): it looks at the machine when `import condor`
+runs, so alone it spins and beside a competitor it sleeps.
 
 On a machine with other work running the "alone" figures are not alone: run it idle.
 """
@@ -17,13 +22,16 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import statistics
 import subprocess
 import sys
+import tempfile
 import textwrap
 
 STEP = textwrap.dedent("""
     import json, sys, time
+    import condor  # chooses the wait (condor.openmp) unless the environment holds one
     import torch
     from condor.surrogate.networks import UNetConfig, UNetGenerator
     threads, steps = int(sys.argv[1]), int(sys.argv[2])
@@ -47,20 +55,30 @@ STEP = textwrap.dedent("""
     print(json.dumps(times[len(times) // 2]))
 """)
 
-SETTINGS = {  # name: (torch threads, OMP_WAIT_POLICY or None for the runtime's default)
-    "2-default": (2, None),   # 2 torch threads, the OpenMP runtime's default wait (spinning)
-    "2-passive": (2, "PASSIVE"),  # 2 threads that sleep while they wait (condor's default)
-    "1-default": (1, None),   # 1 thread
+SPIN = {"GOMP_SPINCOUNT": "10000"}  # condor.openmp.SPIN_COUNT, forced
+SETTINGS = {  # name: (torch threads, the OpenMP environment; {} leaves the choice to condor)
+    "2-auto": (2, {}),                               # condor's choice (condor.openmp)
+    "2-spin": (2, SPIN),                             # spin 10,000 turns, then sleep
+    "2-passive": (2, {"OMP_WAIT_POLICY": "PASSIVE"}),  # sleep at once
+    "2-default": (2, {"OMP_WAIT_POLICY": "ACTIVE"}),  # spin while waiting
+    "1-passive": (1, {"OMP_WAIT_POLICY": "PASSIVE"}),  # 1 thread
 }
+OPENMP_KEYS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "CONDOR_OPENMP_WAIT")
 
 
-def step_seconds(threads: int, policy: str | None, steps: int) -> float:
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    if policy:
-        env["OMP_WAIT_POLICY"] = policy
-    out = subprocess.run([sys.executable, "-c", STEP, str(threads), str(steps)], env=env,
-                         check=True, capture_output=True, text=True).stdout
-    return float(json.loads(out.strip().splitlines()[-1]))
+def step_seconds(threads: int, openmp: dict, steps: int, store: str | None = None) -> float:
+    env = {k: v for k, v in os.environ.items() if k not in OPENMP_KEYS}
+    env.update(openmp)
+    if store is None:
+        out = subprocess.run([sys.executable, "-c", STEP, str(threads), str(steps)], env=env,
+                             check=True, capture_output=True, text=True).stdout
+        return float(json.loads(out.strip().splitlines()[-1]))
+    with tempfile.TemporaryDirectory() as tmp:  # condor train: its first epoch (no validation)
+        out = subprocess.run([sys.executable, "-m", "condor.cli", "train", "--store", store,
+                              "--checkpoint", os.path.join(tmp, "m.pt"), "--epochs", "2",
+                              "--threads", str(threads)], env=env, check=True,
+                             capture_output=True, text=True).stdout
+    return float(re.search(r"^epoch 1/2 .* ([0-9.]+) s$", out, re.M).group(1))
 
 
 def main() -> int:
@@ -69,25 +87,29 @@ def main() -> int:
     ap.add_argument("--steps", type=int, default=20)
     ap.add_argument("--competitors", type=int, default=1)
     ap.add_argument("--settings", nargs="+", choices=list(SETTINGS), default=list(SETTINGS))
+    ap.add_argument("--store", default=None,
+                    help="time condor train's first epoch on this store instead of the bare step")
     a = ap.parse_args()
     settings = {k: SETTINGS[k] for k in a.settings}
     alone = {k: [] for k in settings}
     busy = {k: [] for k in settings}
     for r in range(a.rounds):
         for name, (threads, policy) in settings.items():
-            alone[name].append(step_seconds(threads, policy, a.steps))
+            alone[name].append(step_seconds(threads, policy, a.steps, a.store))
         spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
                     for _ in range(a.competitors)]
         try:
             for name, (threads, policy) in settings.items():
-                busy[name].append(step_seconds(threads, policy, a.steps))
+                busy[name].append(step_seconds(threads, policy, a.steps, a.store))
         finally:
             for p in spinners:
                 p.kill()
                 p.wait()
         print(f"round {r + 1}/{a.rounds} done", file=sys.stderr, flush=True)
-    print(f"seconds a training step (median of {a.steps} steps, then median [range] over "
-          f"{a.rounds} rounds), beside {a.competitors} spinning process(es):")
+    what = (f"seconds of condor train's first epoch on {a.store}" if a.store else
+            f"seconds a training step (median of {a.steps} steps")
+    print(f"{what}, then median [range] over {a.rounds} rounds), beside {a.competitors} "
+          "spinning process(es):")
     print(f"{'setting':10s} {'alone':>18s} {'beside':>18s} {'ratio':>18s}")
     for name in settings:
         ratios = [b / s for b, s in zip(busy[name], alone[name])]

@@ -135,21 +135,25 @@ def test_no_circular_imports():
     assert not circles, "\n".join(circles)
 
 
-def test_import_condor_makes_openmp_threads_sleep_unless_told_otherwise():
-    """`import condor` sets OMP_WAIT_POLICY=PASSIVE before torch or numba load the OpenMP
-    runtime (benchmarks/bench_busy.py: spinning threads lose their cores beside other work),
-    and keeps a value the environment already holds."""
+def test_import_condor_chooses_how_openmp_threads_wait_unless_told_otherwise():
+    """`import condor` chooses the wait before torch or numba load the OpenMP runtime
+    (condor.openmp: spin briefly on an idle machine, sleep on a busy one), marks its choice, and
+    keeps a value the environment already holds."""
     import os
     import subprocess
     import sys
 
-    code = "import os, condor; print(os.environ['OMP_WAIT_POLICY'])"
-    env = {k: v for k, v in os.environ.items() if k != "OMP_WAIT_POLICY"}
-    unset = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
-                           text=True, check=True).stdout.strip()
+    from condor import openmp
+
+    code = ("import os, condor; print(os.environ.get('CONDOR_OPENMP_WAIT'), "
+            "os.environ.get('OMP_WAIT_POLICY'), os.environ.get('GOMP_SPINCOUNT'))")
+    env = {k: v for k, v in os.environ.items() if k not in (*openmp.KEYS, openmp.MARK)}
+    chosen = subprocess.run([sys.executable, "-c", code], env=env, capture_output=True,
+                            text=True, check=True).stdout.split()
+    assert chosen in (["spin", "None", str(openmp.SPIN_COUNT)], ["sleep", "PASSIVE", "None"])
     kept = subprocess.run([sys.executable, "-c", code], env={**env, "OMP_WAIT_POLICY": "ACTIVE"},
-                          capture_output=True, text=True, check=True).stdout.strip()
-    assert (unset, kept) == ("PASSIVE", "ACTIVE")
+                          capture_output=True, text=True, check=True).stdout.split()
+    assert kept == ["None", "ACTIVE", "None"]
 
 
 def test_no_module_is_over_the_line_bar():

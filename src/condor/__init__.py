@@ -6,17 +6,14 @@ what each module owns. For the dataset: `condor.open_dataset(path)`,
 module condor.data.dataset; condor.studies.accuracy).
 """
 
-import os
-
+from condor.openmp import choose_wait
 from condor.version import __version__
 
-# OpenMP's threads (torch's and numba's) sleep while they wait for work instead of spinning, so
-# that training, predicting and rasterising keep their speed beside other work: with one
-# spinning competitor on 2 cores, a training step with 2 spinning threads took several times
-# longer (benchmarks/bench_busy.py, docs/scale.md). It must be set before the OpenMP runtime
-# loads, i.e. before torch or a parallel numba function: `import condor` first, or set it in
-# the environment (a value there is kept).
-os.environ.setdefault("OMP_WAIT_POLICY", "PASSIVE")
+# How OpenMP's threads (torch's and numba's) wait for work: they spin briefly where the machine
+# is idle and sleep where other processes want its cores (condor.openmp, docs/scale.md). It must
+# be set before the OpenMP runtime loads, i.e. before torch or a parallel numba function:
+# `import condor` first, or set OMP_WAIT_POLICY or GOMP_SPINCOUNT in the environment (kept).
+choose_wait()
 
 __all__ = ["__version__", "dataset", "open_dataset", "torch_dataset", "score"]
 
