@@ -30,7 +30,7 @@ EXPERIMENTS = sorted((REPO / "experiments").glob("*/*.py"))
 SMOKE = {
     "bench_fields": (["--cells", "300", "--repeats", "1"], "ms"),
     "bench_busy": (["--rounds", "1", "--steps", "1", "--competitors", "1", "--settings",
-                    "1-default"], "ratio"),
+                    "1-passive"], "ratio"),
     "bench_simulator": (["--scene", "tiny", "--solvers", "lbfgs"], "lbfgs"),
     "bench_surrogate": (["--repeats", "1", "--batch", "2", "--threads", "1"], "s/mould"),
     "bench_design": (["--scene", "tiny", "--budget", "20", "--repeats", "1"], "designs"),
