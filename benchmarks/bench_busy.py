@@ -29,6 +29,8 @@ import sys
 import tempfile
 import textwrap
 
+from condor import openmp
+
 STEP = textwrap.dedent("""
     import json, sys, time
     import condor  # chooses the wait (condor.openmp) unless the environment holds one
@@ -55,7 +57,7 @@ STEP = textwrap.dedent("""
     print(json.dumps(times[len(times) // 2]))
 """)
 
-SPIN = {"GOMP_SPINCOUNT": "10000"}  # condor.openmp.SPIN_COUNT, forced
+SPIN = {"GOMP_SPINCOUNT": str(openmp.SPIN_COUNT)}  # condor's idle choice, forced
 SETTINGS = {  # name: (torch threads, the OpenMP environment; {} leaves the choice to condor)
     "2-auto": (2, {}),                               # condor's choice (condor.openmp)
     "2-spin": (2, SPIN),                             # spin 10,000 turns, then sleep
@@ -63,7 +65,7 @@ SETTINGS = {  # name: (torch threads, the OpenMP environment; {} leaves the choi
     "2-default": (2, {"OMP_WAIT_POLICY": "ACTIVE"}),  # spin while waiting
     "1-passive": (1, {"OMP_WAIT_POLICY": "PASSIVE"}),  # 1 thread
 }
-OPENMP_KEYS = ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "CONDOR_OPENMP_WAIT")
+OPENMP_KEYS = (*openmp.KEYS, openmp.MARK)  # a child gets only its setting's
 
 
 def step_seconds(threads: int, openmp: dict, steps: int, store: str | None = None) -> float:
@@ -94,13 +96,13 @@ def main() -> int:
     alone = {k: [] for k in settings}
     busy = {k: [] for k in settings}
     for r in range(a.rounds):
-        for name, (threads, policy) in settings.items():
-            alone[name].append(step_seconds(threads, policy, a.steps, a.store))
+        for name, (threads, environ) in settings.items():
+            alone[name].append(step_seconds(threads, environ, a.steps, a.store))
         spinners = [subprocess.Popen([sys.executable, "-c", "while True: pass"])
                     for _ in range(a.competitors)]
         try:
-            for name, (threads, policy) in settings.items():
-                busy[name].append(step_seconds(threads, policy, a.steps, a.store))
+            for name, (threads, environ) in settings.items():
+                busy[name].append(step_seconds(threads, environ, a.steps, a.store))
         finally:
             for p in spinners:
                 p.kill()
