@@ -110,6 +110,31 @@ def test_rim_posts_stand_at_their_inset_from_one_wall_equally_spaced():
     assert _rim_posts(np.random.default_rng(0), frame, 4, inset=0.7) is None
 
 
+def test_tip_posts_stand_at_the_ends_of_arms_and_a_disk_has_none():
+    """Composite moulds' tip posts (as labs anchor a strip, a cross or a T at its arms' ends):
+    on a T of bars 1 wide, one post in each arm's end, within reach of the tip and centred
+    across the arm; the farthest tips first when fewer posts are asked; a disk has no tip."""
+    from shapely.geometry import LineString, Point
+
+    from condor.moulds.composite import TIP_REACH, _tip_posts
+
+    def bar(p, q):
+        return LineString([p, q]).buffer(0.5, cap_style="flat")
+
+    tee = shapely.union_all([bar((-3, 0), (3, 0)), bar((0, 0), (0, -2))])
+    posts = _tip_posts(tee, 8)
+    assert posts is not None and len(posts) == 3
+    ends = {(-3, 0): 1, (3, 0): 1, (0, -2): 0}  # the tip and the axis across its arm
+    for end, axis in ends.items():
+        d = np.linalg.norm(posts - np.array(end), axis=1)
+        p = posts[int(np.argmin(d))]
+        assert d.min() <= TIP_REACH + 0.5  # within reach of the arm's end
+        assert abs(p[axis]) < 0.05  # on the arm's midline
+    two = _tip_posts(tee, 2)  # the two farthest tips from the pole: the crossbar's ends
+    assert len(two) == 2 and np.allclose(np.sort(np.abs(two[:, 0])), [2.75, 2.75], atol=0.3)
+    assert _tip_posts(Point(0, 0).buffer(2, quad_segs=32), 3) is None
+
+
 def test_random_posts_leave_a_sliver_of_an_inner_region_for_the_whole_outline(monkeypatch):
     """A band whose half-width is a hair over random_posts' wall margin leaves an inner region
     of ~1e-9 of its bounds (a composite mould of the default drew one: 2 CPU minutes of

@@ -135,7 +135,7 @@ def models(ds, lab_share_lofo: float, n_train: int = N_TRAIN,
     trained on)."""
     tag = "" if n_train == N_TRAIN else f"_n{n_train}"
     out = {f"mixture_{share:g}{tag}": {"lab_share": share, "held_out": "none", "n_train": n_train}
-           for share in LAB_SHARES}
+           for share in sorted({*LAB_SHARES, lab_share_lofo})}
     known = set(families_of(ds)) - {PAPER}
     for kind in ([(f,) for pair in KINDS for f in pair] if single else KINDS):
         if not set(kind) <= known:
