@@ -75,6 +75,20 @@ def test_the_unseen_kinds_line_reads_only_the_held_out_rows():
     assert unseen_kinds_sentence(table[table["family"] == "paper"], "x") is None
 
 
+def test_the_never_drawn_line_counts_the_moulds_above_the_scatter_and_the_worst_tension():
+    import pandas as pd
+    from condor.surrogate.novelty import never_drawn_sentence
+    table = pd.DataFrame({"kind": ["tee", "tee", "star", "you", "you"],
+                          "ratio": [1.8, 0.5, 1.2, 0.9, 0.7],
+                          "tension_bias": [0.04, -0.01, -0.16, -0.19, 0.02]})
+    # ratios sorted 0.5 0.7 0.9 1.2 1.8: median 0.90, 2 above 1; |bias| 1 2 4 16 19%: median 4%
+    line = never_drawn_sentence(table, "study at abc")
+    assert "on 5 moulds of 3 kinds" in line and "a median 0.90x" in line
+    assert "(2 above it)" in line and "median of 4%, up to -19% (a you)" in line
+    assert "study at abc" in line
+    assert never_drawn_sentence(table.iloc[:0], "x") is None
+
+
 def test_inverse_spread_is_one_over_the_spread_maps_rms_over_the_tissue():
     rng = np.random.default_rng(4)
     spread = rng.uniform(0.01, 0.2, size=(2, 8, 6, 6))

@@ -72,7 +72,7 @@ def rows_for(name: str, checkpoint: Path, moulds: list, n_check: int, folder: Pa
         c = res.check
         t = c.table.set_index("statistic")
         numbers = zarr.open_group(str(out), mode="r").attrs.get("novelty", {})
-        rows.append({"checkpoint": name, "kind": kind, "variant": variant, "n": c.n,
+        rows.append({"checkpoint": name, "kind": kind, "variant": variant, "replicas": c.n,
                      "error": c.error, "ceiling": c.ceiling, "ratio": c.error / c.ceiling,
                      "tension_predicted": t.loc["mean_tension", "predicted"],
                      "tension_simulated": t.loc["mean_tension", "simulated"],
@@ -108,7 +108,13 @@ def main(argv=None) -> None:
     ap.add_argument("--kinds", nargs="+", default=list(KINDS))
     ap.add_argument("--check", type=int, default=6)
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--ship", default=None, metavar="NAME",
+                    help="write checkpoint NAME's rows as the product's `never_drawn` finding "
+                         "(src/condor/findings), with --commit: that of the default run it is")
+    ap.add_argument("--commit", default=None, help="the commit the shipped checkpoint ran at")
     a = ap.parse_args(argv)
+    if a.ship and not a.commit:
+        ap.error("--ship needs --commit: the commit whose default run made the checkpoint")
     scene = get_scene("default")
     with tempfile.TemporaryDirectory() as tmp:
         folder = Path(tmp)
@@ -126,6 +132,33 @@ def main(argv=None) -> None:
     print(summary(table).round(3).to_string(index=False))
     if a.out:
         table.to_csv(a.out, index=False)
+    if a.ship:
+        ship(table[table["checkpoint"] == a.ship], a.commit, a.variants, a.check)
+
+
+FINDINGS = Path(__file__).resolve().parents[2] / "src" / "condor" / "findings"
+
+
+def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
+    """The shipped checkpoint's rows as the `never_drawn` finding (condor.findings)."""
+    if rows.empty:
+        raise SystemExit("--ship names no checkpoint of --checkpoint")
+    columns = ["kind", "variant", "replicas", "error", "ceiling", "ratio", "tension_bias",
+               "tightness", "flagged"]
+    rows[columns].to_csv(FINDINGS / "never_drawn.csv", index=False, float_format="%.6g")
+    path = FINDINGS / "findings.json"
+    findings = json.loads(path.read_text())
+    findings["never_drawn"] = {
+        "question": "How close does the default run's checkpoint come, and how far off is its "
+                    "mean tension, on kinds of mould that no training source draws?",
+        "table": "never_drawn.csv",
+        "experiment": "experiments/unseen_kinds",
+        "source": f"experiments/unseen_kinds/run.py --variants {variants} --check {n_check}: "
+                  f"{rows['kind'].nunique()} kinds x {variants} moulds (shapes.py), each "
+                  f"checked by {n_check} simulations as `condor predict --check` checks it, "
+                  "with the default run's checkpoint",
+        "commit": commit}
+    path.write_text(json.dumps(findings, indent=1) + "\n")
 
 
 if __name__ == "__main__":

@@ -70,7 +70,11 @@ NOVELTY_COLUMNS = ("score_lo", "score_hi", "n_moulds", "ratio_median", "ratio_lo
 GENERALISATION_COLUMNS = ("family", "held_out", "n_moulds", "replicas", "error", "error_lo",
                           "error_hi", "noise_ceiling", "tension_bias", "tension_bias_lo",
                           "tension_bias_hi")
-TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS,
+# Kinds of mould that no training source draws (experiments/unseen_kinds): a default run's
+# checkpoint checked by simulation on each mould, one row a mould.
+NEVER_DRAWN_COLUMNS = ("kind", "variant", "replicas", "error", "ceiling", "ratio",
+                       "tension_bias")
+TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS, "never_drawn": NEVER_DRAWN_COLUMNS,
                  "spread_calibration": SPREAD_CALIBRATION_COLUMNS,
                  "novelty": NOVELTY_COLUMNS, "generalisation": GENERALISATION_COLUMNS}
 # Values a finding must state, for the findings the product reads by key.

@@ -201,8 +201,8 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
     inverse_spread (one over the RMS of the prediction's spread map), with what was measured on
     moulds of that score: the verdict's lines and its numbers."""
     from condor.surrogate.novelty import (
-        SCORES, inverse_spread, mould_novelty, network_inputs, novelty_verdict,
-        unseen_kinds_sentence,
+        SCORES, inverse_spread, mould_novelty, network_inputs, never_drawn_sentence,
+        novelty_verdict, unseen_kinds_sentence,
     )
 
     x = network_inputs(predictor.inputs_kind, np.asarray(inputs)[None],
@@ -227,10 +227,15 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
     text, numbers = novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
                                     f"{finding.experiment} at {finding.commit}", name,
                                     distance)
-    measured = load_findings().get("generalisation")
-    unseen = None if measured is None else unseen_kinds_sentence(
-        measured.frame(), f"{measured.experiment} at {measured.commit}")
-    return (text if unseen is None else f"{text}\n  {unseen}"), numbers
+    findings = load_findings()
+    measured, drawn = findings.get("generalisation"), findings.get("never_drawn")
+    lines = [text]
+    if measured is not None:
+        lines.append(unseen_kinds_sentence(measured.frame(),
+                                           f"{measured.experiment} at {measured.commit}"))
+    if drawn is not None:
+        lines.append(never_drawn_sentence(drawn.frame(), f"{drawn.experiment} at {drawn.commit}"))
+    return "\n  ".join(line for line in lines if line), numbers
 
 
 def mould_inputs(predictor, mould, placement, warn) -> tuple:

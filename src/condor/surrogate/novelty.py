@@ -280,6 +280,24 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
             f"flagged above {threshold:.3g}): {state}\n  {measured}"), numbers
 
 
+def never_drawn_sentence(moulds: pd.DataFrame, provenance: str) -> str | None:
+    """One line on kinds of mould that no training source draws (the `never_drawn` finding,
+    experiments/unseen_kinds: a default run's checkpoint checked by simulation on each mould,
+    one row a mould with its `kind`, error over one simulation's scatter `ratio` and
+    `tension_bias`): how many moulds and kinds, the median ratio and how many lay above 1, the
+    median |tension bias| and the largest, with its kind. None without rows."""
+    if moulds.empty:
+        return None
+    ratio = moulds["ratio"].astype(float)
+    bias = moulds["tension_bias"].astype(float)
+    worst = moulds.loc[bias.abs().idxmax()]
+    return (f"on {len(moulds)} moulds of {moulds['kind'].nunique()} kinds that no training source "
+            f"draws (T, H, U shapes, stars, ...), the default recipe's error was a median "
+            f"{ratio.median():.2f}x one simulation's scatter ({int((ratio > 1).sum())} above it) "
+            f"and its mean tension off by a median of {bias.abs().median():.0%}, up to "
+            f"{float(worst['tension_bias']):+.0%} (a {worst['kind']}) ({provenance})")
+
+
 def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str) -> str | None:
     """One line on the whole-mould mean tension of kinds of mould the surrogate never trained
     on, from the generalisation finding's held-out rows (a family scored by a model that did not
