@@ -43,6 +43,8 @@ def main(argv=None) -> int:
     ap.add_argument("--tables", default=".", help="the folder of the tables, in this study's")
     ap.add_argument("--n-train", type=int, default=250, help="the models' training moulds")
     ap.add_argument("--lab-share", type=float, default=0.5, help="their lab share")
+    ap.add_argument("--extra-name", default="COMPOSITE_RIM",
+                    help="what the source line calls the extra store (composite_rim.yaml's: COMPOSITE_RIM)")
     ap.add_argument("--extra-share", type=float, default=0.0,
                     help="run.py's --extra-share: the share of composite moulds "
                          "(composite_rim.yaml's store) among their training moulds")
@@ -59,7 +61,7 @@ def main(argv=None) -> int:
     calibration.to_csv(FINDINGS / "novelty.csv", index=False)
     choice = json.loads((tables / "novelty_choice.json").read_text())
     n_models = table["held_out"].nunique()
-    extra = (f" --extra COMPOSITE_RIM --extra-share {a.extra_share:g}" if a.extra_share else "")
+    extra = (f" --extra {a.extra_name} --extra-share {a.extra_share:g}" if a.extra_share else "")
     extra += f" --set {' '.join(a.set)}" if a.set else ""
     composite = (f" ({round(a.extra_share * a.n_train)} of them composite)" if a.extra_share
                  else "")

@@ -144,7 +144,7 @@ def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
     if rows.empty:
         raise SystemExit("--ship names no checkpoint of --checkpoint")
     columns = ["kind", "variant", "replicas", "error", "ceiling", "ratio", "tension_bias",
-               "tightness", "flagged"]
+               "tightness"]
     rows[columns].to_csv(FINDINGS / "never_drawn.csv", index=False, float_format="%.6g")
     path = FINDINGS / "findings.json"
     findings = json.loads(path.read_text())
