@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import sys
 import tempfile
 from pathlib import Path
 
@@ -31,8 +30,7 @@ import condor.stages.predict as predict_stage
 from condor.model.scenes import get_scene
 from condor.stages.predict import predict_mould
 
-sys.path.insert(0, str(Path(__file__).parent))
-from shapes import KINDS, unseen_mould  # noqa: E402
+from shapes import KINDS, unseen_mould  # this folder's (on sys.path as for any script)
 
 
 _SIMULATED: dict = {}
