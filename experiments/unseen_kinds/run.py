@@ -27,6 +27,7 @@ import zarr
 
 import condor.stages.check as check_stage
 import condor.stages.predict as predict_stage
+from condor.files import write_text
 from condor.model.scenes import get_scene
 from condor.stages.predict import predict_mould
 
@@ -129,7 +130,7 @@ def main(argv=None) -> None:
     table = pd.DataFrame(rows)
     print(summary(table).round(3).to_string(index=False))
     if a.out:
-        table.to_csv(a.out, index=False)
+        write_text(a.out, table.to_csv(index=False))
     if a.ship:
         ship(table[table["checkpoint"] == a.ship], a.commit, a.variants, a.check)
 
@@ -143,7 +144,8 @@ def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
         raise SystemExit("--ship names no checkpoint of --checkpoint")
     columns = ["kind", "variant", "replicas", "error", "ceiling", "ratio", "tension_bias",
                "tightness"]
-    rows[columns].to_csv(FINDINGS / "never_drawn.csv", index=False, float_format="%.6g")
+    write_text(FINDINGS / "never_drawn.csv",
+               rows[columns].to_csv(index=False, float_format="%.6g"))
     path = FINDINGS / "findings.json"
     findings = json.loads(path.read_text())
     findings["never_drawn"] = {
@@ -156,7 +158,7 @@ def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
                   f"checked by {n_check} simulations as `condor predict --check` checks it, "
                   "with the default run's checkpoint",
         "commit": commit}
-    path.write_text(json.dumps(findings, indent=1) + "\n")
+    write_text(path, json.dumps(findings, indent=1) + "\n")
 
 
 if __name__ == "__main__":

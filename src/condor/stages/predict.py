@@ -209,7 +209,8 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
                        None if lattice is None else np.asarray(lattice).reshape(
                            (1,) + np.shape(inputs)))
     distance = float(mould_novelty(predictor.model, predictor.inputs_kind, bank, x)[0])
-    finding = load_findings().get("novelty")
+    findings = load_findings()  # read once: the calibration and the two sentences below
+    finding = findings.get("novelty")
     if finding is None:  # a package without the calibration
         return (f"novelty {distance:.2f} (1 is typical of its training moulds; not calibrated)",
                 {"novelty": distance})
@@ -227,7 +228,6 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
     text, numbers = novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
                                     f"{finding.experiment} at {finding.commit}", name,
                                     distance)
-    findings = load_findings()
     measured, drawn = findings.get("generalisation"), findings.get("never_drawn")
     lines = [text]
     if measured is not None:
