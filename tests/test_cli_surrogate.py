@@ -577,3 +577,45 @@ def test_design_from_your_mould_keeps_it_and_reports_yours_against_the_best(
 
     assert load_placement(out / "design_01_drawn.dxf", get_scene("default"), l0_um=16,
                           fit="extent").drawn_l0[0] == pytest.approx(0.6 * 1000 / 16, rel=1e-6)
+
+
+def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
+        trained, design_checkpoint, tmp_path, capsys):
+    """With a checkpoint whose scene can be simulated (the default scene's box and a depth),
+    `predict` checks the mould by AUTO_CHECK simulations unasked: the .zarr holds their mean
+    (sum P = the mould's cells, the prediction's own N_c) and the check's numbers, the .png a
+    page of more panels; `--check 0` writes the prediction alone."""
+    from condor.model.lattice import lattice_sites
+    from condor.stages.check import AUTO_CHECK
+
+    mould_json = tmp_path / "m.json"
+    cli.main(["mould", "--seed", "7", "--id", "0", "--out", str(mould_json)])
+    out = tmp_path / "auto.zarr"
+    cli.main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint), "--out",
+              str(out)])
+    printed = capsys.readouterr().out
+    assert f"checked by {AUTO_CHECK} simulations" in printed and "--check 0 skips it" in printed
+    written = xr.open_zarr(out)
+    check = written.attrs["check"]
+    assert check["simulations"] == AUTO_CHECK and check["automatic"]
+    assert check["ratio"] == pytest.approx(check["error"] / check["ceiling"])
+    simulated = written["simulated"].values.astype(np.float64)
+    mould = load_json(mould_json)
+    cells = len(lattice_sites(mould.polygon, mould.tethers, 2.0)[0])  # the checkpoint's depth
+    assert simulated[0].sum() == pytest.approx(cells, rel=1e-3)
+    assert np.all(written["simulated_sd"].values >= 0)
+    none = tmp_path / "none.zarr"
+    cli.main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint), "--out",
+              str(none), "--check", "0"])
+    assert "checked by" not in capsys.readouterr().out
+    assert "simulated" not in xr.open_zarr(none) and "check" not in xr.open_zarr(none).attrs
+    pages = {}
+    for check_arg in ("0", "2"):
+        page = tmp_path / f"page{check_arg}.png"
+        cli.main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint), "--out",
+                  str(page), "--check", check_arg])
+        pages[check_arg] = Image.open(page).size
+    assert pages["2"][0] == pages["0"][0] and pages["2"][1] > 1.4 * pages["0"][1]
+    assert run_main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint),
+                     "--out", str(tmp_path / "x.zarr"), "--check", "some"]) == 2
+    assert "--check" in capsys.readouterr().err

@@ -1,6 +1,9 @@
 """A predictor scored family by family (condor.studies.families), and a prediction checked by
 simulation (condor.stages.check)."""
 
+import dataclasses
+import math
+
 import numpy as np
 import pytest
 
@@ -9,7 +12,8 @@ from condor.data.seeds import replica_seed
 from condor.model.scenes import get_scene
 from condor.moulds.lab import lab_mould
 from condor.stages.build import simulate_mould
-from condor.stages.check import CHECK_SEED, check_prediction
+from condor.stages.check import (AUTO, AUTO_CHECK, AUTO_CHECK_MAX_CELLS, CHECK_SEED, check_count,
+                                 check_prediction)
 from condor.studies.families import family_rows, mean_tension
 from condor.studies.recipes import Ensemble
 from condor.surrogate.answer import statistics
@@ -69,7 +73,13 @@ def test_a_check_scores_the_prediction_against_the_same_simulations_run_directly
     lines = []
     check = check_prediction(mould, scene, mean, len(r.positions), 3, say=lines.append)
     assert check.n == 3 and len(lines) == 3 and not check.failed
-    assert check.error == 0.0 and check.ceiling > 0
+    assert check.error == 0.0 and check.ceiling > 0 and check.ratio == 0.0
+    # what predict writes beside the prediction: the replicas' mean, normalised and raw
+    np.testing.assert_allclose(check.simulated_normalised, mean, rtol=1e-5, atol=1e-7)
+    assert check.simulated[0].sum() == pytest.approx(len(r.positions), rel=1e-4)  # sum P = N_c
+    np.testing.assert_allclose(check.simulated * scene.pixels ** 2 / len(r.positions), mean,
+                               rtol=1e-4, atol=1e-6)
+    assert check.attributes()["simulations"] == 3 and not check.automatic
     tension = check.table.set_index("statistic").loc["mean_tension"]
     assert tension.simulated == pytest.approx(np.mean([s["mean_tension"] for s in stats]))
     assert tension.simulated_sd == pytest.approx(np.std([s["mean_tension"] for s in stats],
@@ -79,3 +89,17 @@ def test_a_check_scores_the_prediction_against_the_same_simulations_run_directly
     assert "checked by 3 simulations" in one.lines()[0]
     with pytest.raises(ValueError, match="--check 1: .* at least 2"):
         check_prediction(mould, scene, mean, len(r.positions), 1)
+
+
+def test_predict_checks_by_default_only_where_simulations_are_cheap():
+    """`--check auto` (predict's default) runs AUTO_CHECK simulations for a mould of at most
+    AUTO_CHECK_MAX_CELLS cells in a scene that can be simulated, none otherwise; a number is
+    taken as given, anything else refused naming the flag."""
+    default, paper = get_scene("default"), get_scene("paper")
+    assert check_count(AUTO, 1500.0, default) == AUTO_CHECK >= 3
+    assert check_count(AUTO, AUTO_CHECK_MAX_CELLS + 1.0, paper) == 0
+    assert check_count(AUTO, 1500.0, dataclasses.replace(default, depth=math.nan)) == 0
+    assert check_count(0, 1500.0, default) == 0 and check_count(7, 1e5, paper) == 7
+    for bad in (-1, 2.5, "all", True):
+        with pytest.raises(ValueError, match="--check"):
+            check_count(bad, 1500.0, default)

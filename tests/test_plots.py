@@ -1,10 +1,10 @@
-"""condor.plots: the page `condor predict --out p.png` draws for a biologist."""
+"""condor.prediction_page: the page `condor predict --out p.png` draws for a biologist."""
 
 import numpy as np
 import pandas as pd
 from PIL import Image
 
-from condor import plots
+from condor import prediction_page as page
 from condor.surrogate.predict import Prediction
 
 
@@ -17,11 +17,11 @@ def test_the_verdict_on_the_page_is_two_short_lines():
                "Simulate it (condor simulate) to be sure")
     for verdict, words in ((inside, "inside on all 5 counts"),
                            (outside, "OUTSIDE on 2 of 5 counts: area / box area 0.32; tethers 2")):
-        lines = plots.short_verdict(verdict)
+        lines = page.short_verdict(verdict)
         assert len(lines) == 2 and all(len(line) <= 130 for line in lines)
         assert words in lines[0], lines
-    assert "simulate it" in plots.short_verdict(outside)[1]
-    assert plots.short_verdict(None) == []
+    assert "simulate it" in page.short_verdict(outside)[1]
+    assert page.short_verdict(None) == []
 
 
 def test_the_page_has_plain_names_and_units(tmp_path):
@@ -36,7 +36,7 @@ def test_the_page_has_plain_names_and_units(tmp_path):
     inputs[0, 8:24, 8:24] = 1
     inputs[1, 14:17, 14:17], inputs[0, 14:17, 14:17] = 1, 0
     prediction = Prediction(raw, raw * n * n / raw[0].sum(), float(raw[0].sum()), raw * 0.1)
-    panels = plots._page_fields(raw, raw * 0.1, 0.5, 16.0)
+    panels = page.page_fields(raw, raw * 0.1, 0.5, 16.0)
     names = [p[0] for p in panels]
     assert names == ["density", "tension", "alignment along x", "alignment at 45°",
                      "out of plane", "density scatter", "tension scatter"]
@@ -49,10 +49,10 @@ def test_the_page_has_plain_names_and_units(tmp_path):
                             ("mean_tension", 0.01, 0.001, "T units"),
                             ("tissue_area_mm2", 0.02, 0.001, "mm^2")],
                            columns=["statistic", "value", "spread", "unit"])
-    path = plots.prediction_panels(inputs, prediction, tmp_path / "p.png", summary=summary,
+    path = page.prediction_panels(inputs, prediction, tmp_path / "p.png", summary=summary,
                                    verdict="inside the training domain on all 5 counts (...)",
                                    pixel_size=0.5, l0_um=16.0, scale=0.5)
     with Image.open(path) as image:
         assert image.size[0] > 1000
-    line = plots._plain_statistics(summary)
+    line = page.plain_statistics(summary)
     assert "alignment 0.5 ± 0.1 (0: random, 1: all one way)" in line and "mm²" in line

@@ -10,7 +10,8 @@ import torch
 import xarray as xr
 from shapely.geometry import Polygon, box
 
-from condor import cli, plots
+from condor import cli
+from condor.prediction_page import prediction_panels
 from condor.model.lattice import build_lattice
 from condor.model.scenes import get_scene
 from condor.moulds.paper import generate_mould
@@ -410,7 +411,7 @@ def test_physics_prediction_keeps_relations_and_writes_spread(physics_ds, tmp_pa
     written = xr.open_zarr(tmp_path / "p.zarr")
     assert written["spread"].dims == ("field", "y", "x")
     assert float(written["raw"].sel(field="P").sum()) == pytest.approx(123, rel=1e-5)
-    plots.prediction_panels(inputs[0], single, tmp_path / "p.png")
+    prediction_panels(inputs[0], single, tmp_path / "p.png")
     assert (tmp_path / "p.png").stat().st_size > 0
     # a mould JSON through `condor predict`: N_c is its exact lattice count at the scene's depth
     mould = generate_mould(3, 1, replace(get_scene("tiny"), box=predictor.box))

@@ -83,6 +83,19 @@ def _non_negative_int(text: str) -> int:
     return value
 
 
+def _check_arg(text: str):
+    """--check: a number of simulations, or 'auto' (condor.stages.check.AUTO)."""
+    from condor.stages.check import AUTO
+
+    if text == AUTO:
+        return AUTO
+    try:
+        return _non_negative_int(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a number of simulations (0: none) or "
+                                         f"{AUTO!r}, got {text!r}") from None
+
+
 def _positive_int(text: str) -> int:
     value = _non_negative_int(text)
     if value < 1:
@@ -486,10 +499,12 @@ def _parser_predict(sub) -> None:
                    help="the network's arithmetic: bfloat16 is about twice as fast where the "
                         "CPU has it and moves the fields by a few 1e-3 of their largest value; "
                         "auto takes it where it is native (default: %(default)s)")
-    p.add_argument("--check", type=_non_negative_int, default=0, metavar="N",
-                   help="simulate the mould N times with the dataset's solver (seconds each at "
-                        "the default scene) and score the prediction against them (N >= 2; "
-                        "default: no check)")
+    p.add_argument("--check", type=_check_arg, default="auto", metavar="N",
+                   help="simulate the mould N times with the dataset's solver and score the "
+                        "prediction against them, writing their mean beside it (N >= 2; 0: no "
+                        "check). Default auto: 4 simulations where the mould holds at most "
+                        "4,000 cells (the default and tiny scenes: seconds in all), none at the "
+                        "paper scene")
     _user_mould_args(p)
     _device_arg(p)
     _force_arg(p)

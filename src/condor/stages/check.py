@@ -31,6 +31,12 @@ from condor.surrogate.answer import statistics
 
 CHECK_SEED = 0x0C4EC  # the dataset seed of a check's replica streams (no dataset uses it)
 MIN_CHECK = 2  # replicas: the noise needs two; three or more for a steadier figure
+AUTO = "auto"  # `condor predict`'s default: AUTO_CHECK simulations where they are cheap
+AUTO_CHECK = 4  # simulations of an automatic check (experiments/check_verdict)
+# an automatic check runs where the mould holds at most this many cells: the default scene's
+# moulds (1,000-2,500 cells, 0.3-1 CPU s a simulation) and the tiny scene's, not the paper
+# scene's (about 9,300 cells at 800 moves a cell: minutes for a check)
+AUTO_CHECK_MAX_CELLS = 4000
 
 
 @dataclass
@@ -47,9 +53,27 @@ class Check:
     table: pd.DataFrame
     failed: list
     seconds: float
+    simulated: np.ndarray | None = None  # the replicas' mean raw fields (8, H, W)
+    simulated_sd: np.ndarray | None = None  # their standard deviation about it (8, H, W)
+    simulated_normalised: np.ndarray | None = None  # the mean of their normalised fields
+    automatic: bool = False  # run by default (`--check auto`), not asked for
+
+    @property
+    def ratio(self) -> float:
+        """The prediction's error over one simulation's scatter (above 1: the surrogate is
+        farther from the simulations' mean than one simulation is)."""
+        return self.error / self.ceiling if self.ceiling > 0 else math.nan
+
+    def attributes(self) -> dict:
+        """The check as JSON-ready attributes (a prediction store's `check`)."""
+        return {"simulations": self.n, "error": self.error, "ceiling": self.ceiling,
+                "ratio": self.ratio, "automatic": self.automatic, "seconds": self.seconds,
+                "seeds": f"condor.data.seeds.replica_seed({CHECK_SEED}, 0, k), k = 0..",
+                "failed": [[int(s), str(why)] for s, why in self.failed],
+                "statistics": self.table.to_dict(orient="records")}
 
     def lines(self) -> list[str]:
-        ratio = self.error / self.ceiling if self.ceiling > 0 else math.nan
+        ratio = self.ratio
         words = ("closer to the simulations' mean than one simulation is" if ratio < 1 else
                  "farther from the simulations' mean than one simulation is")
         lines = [f"checked by {self.n} simulations ({self.seconds:.0f} s): the prediction lies "
@@ -64,11 +88,32 @@ class Check:
         if self.failed:
             lines.append(f"  {len(self.failed)} simulation(s) failed: "
                          + "; ".join(f"seed {s}: {why}" for s, why in self.failed))
+        if ratio > 1:
+            lines.append(f"  the surrogate is off on this mould: trust the {self.n} simulations' "
+                         "mean over it (written beside the prediction: `simulated` in the .zarr, "
+                         "the row of simulated panels in the .png)")
+        if self.automatic:
+            lines.append(f"  (checked by default where a simulation takes seconds: --check 0 "
+                         "skips it, --check N runs N)")
         return lines
 
 
+def check_count(check, n_cells: float, scene: Scene) -> int:
+    """How many simulations `predict`'s `check` asks for: an integer as given; AUTO, AUTO_CHECK
+    where the mould holds at most AUTO_CHECK_MAX_CELLS cells (`n_cells`) and the scene can be
+    simulated (its depth is known), else 0. ValueError names any other value."""
+    if isinstance(check, str) and check == AUTO:
+        cheap = math.isfinite(scene.depth) and float(n_cells) <= AUTO_CHECK_MAX_CELLS
+        return AUTO_CHECK if cheap else 0
+    if isinstance(check, bool) or not isinstance(check, (int, np.integer)) or check < 0:
+        raise ValueError(f"--check {check!r}: give a number of simulations (0: none) or "
+                         f"{AUTO!r}")
+    return int(check)
+
+
 def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_cells: float,
-                     n: int, solver: str | None = None, budget=None, say=None) -> Check:
+                     n: int, solver: str | None = None, budget=None, say=None,
+                     automatic: bool = False) -> Check:
     """Simulate `mould` (a condor.moulds.mould.Mould placed in `scene`) `n` times with `solver`
     (None: the product's) and score `predicted_normalised` (8, H, W, the scene's grid; its N_c
     `n_cells`) against the replicas (class Check). `say(line)`: one line a replica, as each finishes. ValueError
@@ -79,7 +124,7 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
     if not math.isfinite(scene.depth):
         raise ValueError("the checkpoint records no mould depth: its scene cannot be simulated")
     solver = solver or DEFAULT_SOLVER
-    fields, stats, failed = [], [], []
+    fields, raws, stats, failed = [], [], [], []
     start = time.monotonic()
     for k in range(n):
         seed = replica_seed(CHECK_SEED, 0, k)
@@ -93,6 +138,7 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
                           scene.pixels, scene.sigma)
         f = normalise(raw, len(result.positions))
         fields.append(f)
+        raws.append(raw)
         stats.append(statistics(f, len(result.positions), scene.pixel_size))
         if say is not None:
             say(f"simulation {k + 1}/{n}: {result.n_cells} cells, E/cell "
@@ -113,6 +159,11 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
         rows.append({"statistic": name, "predicted": value, "simulated": mean,
                      "simulated_sd": sd,
                      "difference_in_sd": (value - mean) / sd if sd > 0 else math.nan})
+    raws = np.stack(raws).astype(np.float64)
     return Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),
-                 failed=failed, seconds=time.monotonic() - start)
+                 failed=failed, seconds=time.monotonic() - start,
+                 simulated=raws.mean(axis=0).astype(np.float32),
+                 simulated_sd=raws.std(axis=0, ddof=1).astype(np.float32),
+                 simulated_normalised=replicas[0].mean(axis=0).astype(np.float32),
+                 automatic=automatic)
 

@@ -19,7 +19,6 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from condor import plots
 from condor.data.store import FORMAT
 from condor.findings import load_findings
 from condor.model.scenes import PRESETS, Scene, same_length
@@ -27,6 +26,8 @@ from condor.moulds.domain import training_domain_check
 from condor.moulds.mould import input_channels
 from condor.moulds.read import load_placement
 from condor.moulds.read_picture import PICTURE_SUFFIXES
+from condor.prediction_page import prediction_panels
+from condor.stages.check import AUTO, check_count, check_prediction
 from condor.surrogate.modes import DEFAULT_PRECISION
 
 # a mould itself (a picture is read as one: condor.moulds.read_picture); a .npy is its masks
@@ -100,7 +101,7 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
             warn(warning)
         if bank is None:
             verdict = mould_domain_verdict(placement.mould, scene)
-    if check and placement is None:
+    if check and check != AUTO and placement is None:
         raise PredictError(f"--check simulates the mould, which needs its geometry: give "
                            f"{mould} as a mould file or a picture of it (JSON, SVG, DXF, PNG, "
                            "TIFF, JPEG), not its masks")
@@ -110,11 +111,23 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
         verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice, prediction)
     scale = placement.scale if placement is not None else 1.0
     table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale)
+    checked = None
+    n_check = check_count(check, float(prediction.n_cells), scene) if placement else 0
+    if n_check:
+        say(f"checking by {n_check} simulations of the mould ({scene.name} scene)")
+        try:
+            checked = check_prediction(placement.mould, scene, prediction.normalised,
+                                       float(prediction.n_cells), n_check, say=say,
+                                       automatic=check == AUTO)
+        except ValueError as err:
+            if check != AUTO:
+                raise
+            warn(f"the automatic check did not run: {err}")
     if out.suffix.lower() == ".png":
-        plots.prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
+        prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
                                 pixel_size=predictor.pixel_size, l0_um=l0_um, scale=scale,
                                 title=f"{Path(mould).name}: predicted organisation, "
-                                      f"{float(prediction.n_cells):.0f} cells")
+                                      f"{float(prediction.n_cells):.0f} cells", check=checked)
     else:
         from condor.surrogate.prediction_zarr import write_prediction
 
@@ -123,14 +136,7 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
         if novelty is not None:
             attrs["novelty"] = novelty
         write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
-                         l0_um=l0_um, scale=scale)
-    checked = None
-    if check:
-        from condor.stages.check import check_prediction
-
-        say(f"checking by {check} simulations of the mould ({scene.name} scene)")
-        checked = check_prediction(placement.mould, scene, prediction.normalised,
-                                   float(prediction.n_cells), check, say=say)
+                         l0_um=l0_um, scale=scale, check=checked)
     return PredictedMould(out, prediction, table, calibrated, verdict, predictor.native,
                           predictor.mode, checked)
 

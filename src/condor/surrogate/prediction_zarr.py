@@ -1,6 +1,6 @@
 """A prediction as an xarray Dataset with CF attributes, written as a Zarr store
 (`write_prediction`): the fields raw and normalised, their spread, the inputs, and x/y in mm
-given the cell spacing. (A picture of it: condor.plots.prediction_panels.)"""
+given the cell spacing. (A picture of it: condor.prediction_page.prediction_panels.)"""
 
 from __future__ import annotations
 
@@ -54,9 +54,11 @@ def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = Non
 
 def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
                        attrs: dict | None = None, l0_um: float | None = None,
-                       scale: float = 1.0):
+                       scale: float = 1.0, check=None):
     """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
-    (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); x/y pixel
+    (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); with `check`
+    (condor.stages.check.Check) the simulations' `simulated`, `simulated_sd` and
+    `simulated_normalised` (field, y, x) and the check's numbers (attribute `check`); x/y pixel
     centres (grid_coordinates: in mm given l0_um, else l0; pixels when pixel_size is None),
     every variable and coordinate with CF `units` and `long_name`."""
     n = inputs.shape[-1]
@@ -77,6 +79,18 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
                                 "around the expected (raw) field, per pixel", "units": "1",
                                 "description": "standard deviation of one simulation's field "
                                                "around the expected (raw) field, per pixel"})
+    if check is not None and check.simulated is not None:
+        what = f"{check.n} simulations of the mould (condor predict --check)"
+        variables["simulated"] = (("field", "y", "x"), check.simulated,
+                                  {"long_name": f"mean raw fields of {what}", "units": "1",
+                                   **per_field})
+        variables["simulated_sd"] = (("field", "y", "x"), check.simulated_sd,
+                                     {"long_name": f"standard deviation of the raw fields of {what}",
+                                      "units": "1", **per_field})
+        variables["simulated_normalised"] = (("field", "y", "x"), check.simulated_normalised,
+                                             {"long_name": f"mean normalised fields of {what}",
+                                              "units": "1", **per_field})
+        attrs = {**(attrs or {}), "check": check.attributes()}
     coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
               "channel": ("channel", ["mould", "tether"], {"long_name": "input channel"}),
               **grid_coordinates(n, pixel_size, l0_um, scale)}
@@ -90,7 +104,7 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
 def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
                      pixel_size: float | None = None, attrs: dict | None = None,
                      overwrite: bool = False, l0_um: float | None = None,
-                     scale: float = 1.0) -> None:
+                     scale: float = 1.0, check=None) -> None:
     """Write a prediction as a .zarr store (xarray, see prediction_dataset), whole or not at all
     (condor.files.atomic_path); an existing one is replaced only with `overwrite`."""
     path = Path(path)
@@ -99,5 +113,5 @@ def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
     if path.exists() and not overwrite:
         raise FileExistsError(errno.EEXIST, f"prediction store {str(path)!r} exists", str(path))
     with quiet_zarr(), atomic_path(path) as tmp:
-        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale).to_zarr(
+        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale, check).to_zarr(
             tmp, mode="w-")
