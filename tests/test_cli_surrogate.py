@@ -604,6 +604,11 @@ def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
     cells = len(lattice_sites(mould.polygon, mould.tethers, 2.0)[0])  # the checkpoint's depth
     assert simulated[0].sum() == pytest.approx(cells, rel=1e-3)
     assert np.all(written["simulated_sd"].values >= 0)
+    weight = written["best"].attrs["prediction_weight"]
+    assert 0 <= weight <= 1 and weight == check["best_weight"]
+    np.testing.assert_allclose(  # between the prediction and the simulations' mean
+        written["best"].values, weight * written["normalised"].values
+        + (1 - weight) * written["simulated_normalised"].values, rtol=1e-4, atol=1e-6)
     none = tmp_path / "none.zarr"
     cli.main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint), "--out",
               str(none), "--check", "0"])

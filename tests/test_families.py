@@ -12,8 +12,8 @@ from condor.data.seeds import replica_seed
 from condor.model.scenes import get_scene
 from condor.moulds.lab import lab_mould
 from condor.stages.build import simulate_mould
-from condor.stages.check import (AUTO, AUTO_CHECK, AUTO_CHECK_MAX_CELLS, CHECK_SEED, check_count,
-                                 check_prediction)
+from condor.stages.check import (AUTO, AUTO_CHECK, AUTO_CHECK_MAX_CELLS, CHECK_SEED,
+                                 best_estimate, check_count, check_prediction)
 from condor.studies.families import family_rows, mean_tension
 from condor.studies.recipes import Ensemble
 from condor.surrogate.answer import statistics
@@ -80,6 +80,9 @@ def test_a_check_scores_the_prediction_against_the_same_simulations_run_directly
     np.testing.assert_allclose(check.simulated * scene.pixels ** 2 / len(r.positions), mean,
                                rtol=1e-4, atol=1e-6)
     assert check.attributes()["simulations"] == 3 and not check.automatic
+    # the replicas' own mean as the prediction: no error, so it keeps all the weight
+    assert check.weight == 1.0
+    np.testing.assert_allclose(check.best_normalised, mean, rtol=1e-5, atol=1e-7)
     tension = check.table.set_index("statistic").loc["mean_tension"]
     assert tension.simulated == pytest.approx(np.mean([s["mean_tension"] for s in stats]))
     assert tension.simulated_sd == pytest.approx(np.std([s["mean_tension"] for s in stats],
@@ -103,3 +106,28 @@ def test_predict_checks_by_default_only_where_simulations_are_cheap():
     for bad in (-1, 2.5, "all", True):
         with pytest.raises(ValueError, match="--check"):
             check_count(bad, 1500.0, default)
+
+
+def test_the_best_estimate_weighs_prediction_and_simulations_by_their_errors():
+    """Synthetic draws with a known truth: replicas = truth + noise sigma, a prediction off by
+    a known amount. best_estimate's weight is the prediction's share the known errors give,
+    (sigma^2 / N) / (b^2 + sigma^2 / N), within the draws' chance; over many draws its squared
+    error against the truth is below both the prediction's and the replicas' mean's."""
+    rng = np.random.default_rng(7)
+    truth = rng.uniform(0, 1, (8, 16, 16))
+    sigma, n = 0.2, 4
+    for bias in (0.05, 0.1, 0.4):
+        expected_weight = (sigma ** 2 / n) / (bias ** 2 + sigma ** 2 / n)
+        weights, errors = [], {"best": [], "prediction": [], "mean": []}
+        for _ in range(40):
+            reps = truth + rng.normal(0, sigma, (n,) + truth.shape)
+            predicted = truth + bias * rng.choice([-1.0, 1.0], truth.shape)
+            best, weight = best_estimate(predicted, reps)
+            weights.append(weight)
+            for name, f in (("best", best), ("prediction", predicted), ("mean", reps.mean(0))):
+                errors[name].append(np.mean((f - truth) ** 2))
+        assert np.median(weights) == pytest.approx(expected_weight, abs=0.05)
+        mse = {k: np.mean(v) for k, v in errors.items()}
+        assert mse["best"] < min(mse["prediction"], mse["mean"])
+    exact, weight = best_estimate(truth, truth + rng.normal(0, sigma, (n,) + truth.shape))
+    assert weight > 0.9  # a prediction at the truth keeps (nearly) all the weight

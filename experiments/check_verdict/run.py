@@ -55,6 +55,17 @@ def ratio(predicted, replicas):
     return err / est.root_mean(est.noise_ceiling(reps))
 
 
+def combined(predicted, replicas):
+    """(the replicas' mean, the prediction and that mean combined, the prediction's weight):
+    condor.stages.check.best_estimate, weights by the prediction's measured error and the
+    mean's noise."""
+    from condor.stages.check import best_estimate
+
+    reps = np.asarray(replicas, dtype=np.float64)
+    best, weight = best_estimate(predicted, reps)
+    return reps.mean(axis=0), best, weight
+
+
 def moulds_to_score(a, scene):
     shapes = runpy.run_path(str(Path(__file__).resolve().parents[1] / "unseen_kinds"
                                 / "shapes.py"))
@@ -124,8 +135,11 @@ def main(argv=None) -> None:
             continue
         truth = ratio(predicted, fields[max(CHECKS):])
         for n in CHECKS:
+            mean, best, weight = combined(predicted, fields[:n])
             rows.append({"group": group, "mould": name, "n_check": n,
                          "check_ratio": ratio(predicted, fields[:n]), "truth_ratio": truth,
+                         "mean_ratio": ratio(mean, fields[max(CHECKS):]),
+                         "best_ratio": ratio(best, fields[max(CHECKS):]), "weight": weight,
                          "check_cpu_s": sum(s for _, s in sims[:n]), **verdict})
         print(f"{group} {name}: truth {truth:.2f}x, check(4) {rows[-2]['check_ratio']:.2f}x",
               flush=True)

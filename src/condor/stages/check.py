@@ -56,6 +56,8 @@ class Check:
     simulated: np.ndarray | None = None  # the replicas' mean raw fields (8, H, W)
     simulated_sd: np.ndarray | None = None  # their standard deviation about it (8, H, W)
     simulated_normalised: np.ndarray | None = None  # the mean of their normalised fields
+    best_normalised: np.ndarray | None = None  # the prediction and that mean combined
+    weight: float = math.nan  # the prediction's weight in it (best_estimate)
     automatic: bool = False  # run by default (`--check auto`), not asked for
 
     @property
@@ -67,7 +69,8 @@ class Check:
     def attributes(self) -> dict:
         """The check as JSON-ready attributes (a prediction store's `check`)."""
         return {"simulations": self.n, "error": self.error, "ceiling": self.ceiling,
-                "ratio": self.ratio, "automatic": self.automatic, "seconds": self.seconds,
+                "ratio": self.ratio, "best_weight": self.weight, "automatic": self.automatic,
+                "seconds": self.seconds,
                 "seeds": f"condor.data.seeds.replica_seed({CHECK_SEED}, 0, k), k = 0..",
                 "failed": [[int(s), str(why)] for s, why in self.failed],
                 "statistics": self.table.to_dict(orient="records")}
@@ -92,10 +95,29 @@ class Check:
             lines.append(f"  the surrogate is off on this mould: trust the {self.n} simulations' "
                          "mean over it (written beside the prediction: `simulated` in the .zarr, "
                          "the row of simulated panels in the .png)")
+        if math.isfinite(self.weight):
+            lines.append(f"  best estimate (`best` in the .zarr): the prediction and the "
+                         f"simulations' mean weighed by their measured errors, "
+                         f"{100 * self.weight:.0f}% the prediction's")
         if self.automatic:
             lines.append(f"  (checked by default where a simulation takes seconds: --check 0 "
                          "skips it, --check N runs N)")
         return lines
+
+
+def best_estimate(predicted: np.ndarray, replicas: np.ndarray) -> tuple[np.ndarray, float]:
+    """(the prediction and the replicas' mean combined, the prediction's weight w): w p + (1 -
+    w) m, with w = (c^2 / N) / (e^2 + c^2 / N) the weight that minimises the expected squared
+    error of the two combined when their errors are independent: e^2 the prediction's squared
+    error against the replicas' expected fields (noise removed, floored at 0), c^2 / N the
+    noise of the mean m of the N replicas (one simulation's scatter c^2 over N). A prediction
+    off by as much as the mean's noise gets half the weight; one far off, little."""
+    reps = np.asarray(replicas, dtype=np.float64)  # (R, 8, H, W)
+    p = np.asarray(predicted, dtype=np.float64)
+    error = max(float(est.mse_against_expected(p[None], reps[None]).corrected[0]), 0.0)
+    noise = float(est.noise_ceiling(reps[None])[0]) / len(reps)
+    weight = noise / (error + noise) if error + noise > 0 else 0.5
+    return weight * p + (1.0 - weight) * reps.mean(axis=0), weight
 
 
 def check_count(check, n_cells: float, scene: Scene) -> int:
@@ -160,10 +182,11 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
                      "simulated_sd": sd,
                      "difference_in_sd": (value - mean) / sd if sd > 0 else math.nan})
     raws = np.stack(raws).astype(np.float64)
+    best, weight = best_estimate(predicted[0], replicas[0])
     return Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),
                  failed=failed, seconds=time.monotonic() - start,
                  simulated=raws.mean(axis=0).astype(np.float32),
                  simulated_sd=raws.std(axis=0, ddof=1).astype(np.float32),
                  simulated_normalised=replicas[0].mean(axis=0).astype(np.float32),
-                 automatic=automatic)
+                 best_normalised=best.astype(np.float32), weight=weight, automatic=automatic)
 

@@ -58,7 +58,8 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
     """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
     (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); with `check`
     (condor.stages.check.Check) the simulations' `simulated`, `simulated_sd` and
-    `simulated_normalised` (field, y, x) and the check's numbers (attribute `check`); x/y pixel
+    `simulated_normalised` (field, y, x), their combination with the prediction `best`
+    (normalised fields) and the check's numbers (attribute `check`); x/y pixel
     centres (grid_coordinates: in mm given l0_um, else l0; pixels when pixel_size is None),
     every variable and coordinate with CF `units` and `long_name`."""
     n = inputs.shape[-1]
@@ -90,6 +91,13 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
         variables["simulated_normalised"] = (("field", "y", "x"), check.simulated_normalised,
                                              {"long_name": f"mean normalised fields of {what}",
                                               "units": "1", **per_field})
+        if check.best_normalised is not None:
+            variables["best"] = (("field", "y", "x"), check.best_normalised,
+                                 {"long_name": "best estimate of the expected normalised fields: "
+                                  "the prediction and the simulations' mean weighed by their "
+                                  "measured errors (condor.stages.check.best_estimate)",
+                                  "units": "1", "prediction_weight": float(check.weight),
+                                  **per_field})
         attrs = {**(attrs or {}), "check": check.attributes()}
     coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
               "channel": ("channel", ["mould", "tether"], {"long_name": "input channel"}),
