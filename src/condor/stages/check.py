@@ -96,11 +96,11 @@ class Check:
                          "mean over it (written beside the prediction: `simulated` in the .zarr, "
                          "the row of simulated panels in the .png)")
         if math.isfinite(self.weight):
-            lines.append(f"  best estimate (`best` in the .zarr): the prediction and the "
-                         f"simulations' mean weighed by their measured errors, "
+            lines.append("  best estimate (`best` in the .zarr): the prediction and the "
+                         "simulations' mean weighed by their measured errors, "
                          f"{100 * self.weight:.0f}% the prediction's")
         if self.automatic:
-            lines.append(f"  (checked by default where a simulation takes seconds: --check 0 "
+            lines.append("  (checked by default where a simulation takes seconds: --check 0 "
                          "skips it, --check N runs N)")
         return lines
 

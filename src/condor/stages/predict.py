@@ -125,9 +125,9 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
             warn(f"the automatic check did not run: {err}")
     if out.suffix.lower() == ".png":
         prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
-                                pixel_size=predictor.pixel_size, l0_um=l0_um, scale=scale,
-                                title=f"{Path(mould).name}: predicted organisation, "
-                                      f"{float(prediction.n_cells):.0f} cells", check=checked)
+                          pixel_size=predictor.pixel_size, l0_um=l0_um, scale=scale,
+                          title=f"{Path(mould).name}: predicted organisation, "
+                                f"{float(prediction.n_cells):.0f} cells", check=checked)
     else:
         from condor.surrogate.prediction_zarr import write_prediction
 
