@@ -624,3 +624,16 @@ def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
     assert run_main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint),
                      "--out", str(tmp_path / "x.zarr"), "--check", "some"]) == 2
     assert "--check" in capsys.readouterr().err
+
+
+def test_predict_s_check_help_states_the_automatic_check_s_own_numbers():
+    """--check's help quotes AUTO_CHECK and AUTO_CHECK_MAX_CELLS (written out there so that the
+    parser need not import the simulator): it must say what the code does."""
+    from condor.stages.check import AUTO, AUTO_CHECK, AUTO_CHECK_MAX_CELLS
+
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if a.dest == "command").choices["predict"]
+    check = next(a for a in sub._actions if a.dest == "check")
+    assert check.default == AUTO
+    assert f"{AUTO_CHECK} simulations" in check.help
+    assert f"{AUTO_CHECK_MAX_CELLS:,} cells" in check.help
