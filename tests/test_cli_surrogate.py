@@ -583,8 +583,9 @@ def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
         trained, design_checkpoint, tmp_path, capsys):
     """With a checkpoint whose scene can be simulated (the default scene's box and a depth),
     `predict` checks the mould by AUTO_CHECK simulations unasked: the .zarr holds their mean
-    (sum P = the mould's cells, the prediction's own N_c) and the check's numbers, the .png a
-    page of more panels; `--check 0` writes the prediction alone."""
+    (sum P = the mould's cells, the prediction's own N_c) and the check's numbers, and its
+    answer is the best estimate of the surrogate's prediction and their mean; the .png a page
+    of more panels; `--check 0` writes the surrogate's prediction alone."""
     from condor.model.lattice import lattice_sites
     from condor.stages.check import AUTO_CHECK
 
@@ -604,16 +605,26 @@ def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
     cells = len(lattice_sites(mould.polygon, mould.tethers, 2.0)[0])  # the checkpoint's depth
     assert simulated[0].sum() == pytest.approx(cells, rel=1e-3)
     assert np.all(written["simulated_sd"].values >= 0)
-    weight = written["best"].attrs["prediction_weight"]
+    # the answer written is the best estimate: between the surrogate's own prediction and the
+    # simulations' mean, raw and normalised alike (sum P the mould's cells)
+    weight = written["surrogate_normalised"].attrs["prediction_weight"]
     assert 0 <= weight <= 1 and weight == check["best_weight"]
-    np.testing.assert_allclose(  # between the prediction and the simulations' mean
-        written["best"].values, weight * written["normalised"].values
-        + (1 - weight) * written["simulated_normalised"].values, rtol=1e-4, atol=1e-6)
+    assert written.attrs["answer"] == "best estimate"
+    np.testing.assert_allclose(written["normalised"].values, weight
+                               * written["surrogate_normalised"].values + (1 - weight)
+                               * written["simulated_normalised"].values, rtol=1e-4, atol=1e-6)
+    answer_raw = written["raw"].values.astype(np.float64)
+    assert answer_raw[0].sum() == pytest.approx(cells, rel=1e-3)
+    np.testing.assert_allclose(answer_raw, written["normalised"].values * cells
+                               / answer_raw[0].size, rtol=1e-3, atol=1e-6)
     none = tmp_path / "none.zarr"
     cli.main(["predict", str(mould_json), "--checkpoint", str(design_checkpoint), "--out",
               str(none), "--check", "0"])
     assert "checked by" not in capsys.readouterr().out
-    assert "simulated" not in xr.open_zarr(none) and "check" not in xr.open_zarr(none).attrs
+    alone = xr.open_zarr(none)
+    assert "simulated" not in alone and "check" not in alone.attrs
+    assert alone.attrs["answer"] == "surrogate"
+    np.testing.assert_allclose(alone["normalised"].values, written["surrogate_normalised"].values)
     pages = {}
     for check_arg in ("0", "2"):
         page = tmp_path / f"page{check_arg}.png"

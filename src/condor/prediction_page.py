@@ -1,6 +1,6 @@
 """The page `condor predict --out p.png` draws for a biologist (`prediction_panels`): the mould
 and the predicted fields under plain names, each with a colour bar in its unit; after a check
-(condor.stages.check), the simulations' mean beside them. Drawn with condor.plots' matplotlib
+(condor.stages.check), the best estimate in their place and the simulations' mean beside it. Drawn with condor.plots' matplotlib
 setup."""
 
 from __future__ import annotations
@@ -81,15 +81,18 @@ def short_verdict(verdict: str | None) -> list[str]:
 
 def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
                       verdict: str | None = None, pixel_size: float | None = None, l0_um: float | None = None,
-                      scale: float = 1.0, check=None) -> Path:
+                      scale: float = 1.0, check=None, surrogate=None) -> Path:
     """A prediction (condor.surrogate.predict.Prediction) of one mould on one page for a
     biologist: the mould and the fields under plain names (density, tension, alignment along x
     and at 45 degrees, out of plane, and one simulation's scatter), each with a colour bar
     with its unit, axes in mm given `l0_um` (the drawing's mm: `scale` is the factor the
     drawing was placed at) else in l0 (`pixel_size`, l0 a pixel) else pixels; the title holds
     the whole-mould statistics (`summary`, condor.surrogate.answer.mould_summary) and the
-    training-domain verdict in two short lines (`short_verdict`). Every field, raw,
-    normalised and its spread, is in the .zarr `condor predict` writes."""
+    training-domain verdict in two short lines (`short_verdict`). After a `check`
+    (condor.stages.check.Check; `prediction` then its best estimate, `surrogate` the network's
+    own prediction), two more rows: the simulations' mean of the first five fields and the
+    density's difference, surrogate - simulated. Every field, raw, normalised and its spread,
+    is in the .zarr `condor predict` writes."""
     plt = pyplot()
     n = np.asarray(inputs).shape[-1]
     if pixel_size is not None and l0_um is not None:
@@ -105,7 +108,8 @@ def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
     from matplotlib.colors import ListedColormap
 
     if check is not None and check.simulated is not None:
-        panels, simulated = check_panels(panels, check, pixel_size, l0_um)
+        own = page_fields((surrogate or prediction).raw, None, pixel_size, l0_um)[0][1]
+        panels, simulated = check_panels(panels, check, pixel_size, l0_um, own)
     else:
         simulated = []
     items = [("mould and posts", mould, "grey: mould, red: posts",
@@ -138,18 +142,23 @@ def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
         lines.append(plain_statistics(summary))
     lines += short_verdict(verdict)
     if simulated:
-        lines.append(f"checked by {check.n} simulations: the prediction lies {check.ratio:.2f}x "
-                     "one simulation's scatter from their mean"
-                     + (": trust the simulations here (rows 3-4)" if check.ratio > 1 else ""))
+        lines.append(f"checked by {check.n} simulations: the surrogate alone lies "
+                     f"{check.ratio:.2f}x one simulation's scatter from their mean"
+                     + (" (off on this mould)" if check.ratio > 1 else "")
+                     + ("; the fields above combine the two, "
+                        f"{100 * check.weight:.0f}% the surrogate's"
+                        if check.best_normalised is not None else ""))
     fig.set_figheight(2.9 * nrows + 0.18 * len(lines))
     fig.suptitle("\n".join(lines), fontsize=9, x=0.01, ha="left")
     return save(fig, path, dpi=100)
 
 
-def check_panels(predicted: list, check, pixel_size, l0_um) -> tuple[list, list]:
+def check_panels(predicted: list, check, pixel_size, l0_um,
+                 surrogate_density=None) -> tuple[list, list]:
     """(the predicted panels, the simulated ones): the simulations' mean of the page's first
     five fields, each under the same colour scale as its predicted panel, and the density's
-    difference predicted - simulated (a symmetric scale)."""
+    difference surrogate - simulated (a symmetric scale; `surrogate_density` the surrogate's
+    own density panel, by default the first predicted panel's)."""
     simulated = page_fields(check.simulated, None, pixel_size, l0_um)[:5]
     mine, theirs = list(predicted), []
     for k, (name, image, label, cmap, limits) in enumerate(simulated):
@@ -159,9 +168,10 @@ def check_panels(predicted: list, check, pixel_size, l0_um) -> tuple[list, list]
             mine[k] = mine[k][:4] + (limits,)
         theirs.append((f"simulated {name}\n(mean of {check.n} simulations)", image, label,
                        cmap, limits))
-    density = predicted[0][1] - simulated[0][1]
+    own = predicted[0][1] if surrogate_density is None else surrogate_density
+    density = own - simulated[0][1]
     top = max(float(np.nanmax(np.abs(density))), 1e-12)
-    theirs.append(("density, predicted - simulated", density, predicted[0][2], "RdBu_r",
+    theirs.append(("density, surrogate - simulated", density, predicted[0][2], "RdBu_r",
                    (-top, top)))
     return mine, theirs
 

@@ -14,6 +14,7 @@ trusts it on theirs (docs/user_moulds.md).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass
@@ -59,6 +60,7 @@ class Check:
     best_normalised: np.ndarray | None = None  # the prediction and that mean combined
     weight: float = math.nan  # the prediction's weight in it (best_estimate)
     automatic: bool = False  # run by default (`--check auto`), not asked for
+    n_cells: float = math.nan  # the simulated mould's cells (each replica's sum P)
 
     @property
     def ratio(self) -> float:
@@ -92,13 +94,15 @@ class Check:
             lines.append(f"  {len(self.failed)} simulation(s) failed: "
                          + "; ".join(f"seed {s}: {why}" for s, why in self.failed))
         if ratio > 1:
-            lines.append(f"  the surrogate is off on this mould: trust the {self.n} simulations' "
-                         "mean over it (written beside the prediction: `simulated` in the .zarr, "
-                         "the row of simulated panels in the .png)")
+            lines.append(f"  the surrogate is off on this mould: the {self.n} simulations' mean "
+                         "is the better guide (`simulated` in the .zarr, the row of simulated "
+                         "panels in the .png)")
         if math.isfinite(self.weight):
-            lines.append("  best estimate (`best` in the .zarr): the prediction and the "
+            lines.append("  the answer written (`raw` and `normalised` in the .zarr, the top "
+                         "panels of the .png) is the best estimate: the prediction and the "
                          "simulations' mean weighed by their measured errors, "
-                         f"{100 * self.weight:.0f}% the prediction's")
+                         f"{100 * self.weight:.0f}% the prediction's (the surrogate's alone: "
+                         "`surrogate_raw`, `surrogate_normalised`)")
         if self.automatic:
             lines.append("  (checked by default where a simulation takes seconds: --check 0 "
                          "skips it, --check N runs N)")
@@ -118,6 +122,21 @@ def best_estimate(predicted: np.ndarray, replicas: np.ndarray) -> tuple[np.ndarr
     noise = float(est.noise_ceiling(reps[None])[0]) / len(reps)
     weight = noise / (error + noise) if error + noise > 0 else 0.5
     return weight * p + (1.0 - weight) * reps.mean(axis=0), weight
+
+
+def checked_answer(prediction, check):
+    """The fields `predict` writes as its answer: after a check, the best estimate
+    (`check.best_normalised`, raw = normalised x N_c / N_pixels with N_c the simulated
+    mould's cells, the spread the prediction's), else `prediction` itself (a
+    condor.surrogate.predict.Prediction either way)."""
+    if check is None or check.best_normalised is None:
+        return prediction
+    best = np.asarray(check.best_normalised, dtype=np.float64)
+    n_cells = check.n_cells if math.isfinite(check.n_cells) else float(prediction.n_cells)
+    raw = best * n_cells / (best.shape[-2] * best.shape[-1])
+    dtype = np.asarray(prediction.raw).dtype
+    return dataclasses.replace(prediction, raw=raw.astype(dtype), normalised=best.astype(dtype),
+                               n_cells=n_cells)
 
 
 def check_count(check, n_cells: float, scene: Scene) -> int:
@@ -146,7 +165,7 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
     if not math.isfinite(scene.depth):
         raise ValueError("the checkpoint records no mould depth: its scene cannot be simulated")
     solver = solver or DEFAULT_SOLVER
-    fields, raws, stats, failed = [], [], [], []
+    fields, raws, stats, failed, counts = [], [], [], [], []
     start = time.monotonic()
     for k in range(n):
         seed = replica_seed(CHECK_SEED, 0, k)
@@ -161,6 +180,7 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
         f = normalise(raw, len(result.positions))
         fields.append(f)
         raws.append(raw)
+        counts.append(len(result.positions))
         stats.append(statistics(f, len(result.positions), scene.pixel_size))
         if say is not None:
             say(f"simulation {k + 1}/{n}: {result.n_cells} cells, E/cell "
@@ -188,5 +208,6 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
                  simulated=raws.mean(axis=0).astype(np.float32),
                  simulated_sd=raws.std(axis=0, ddof=1).astype(np.float32),
                  simulated_normalised=replicas[0].mean(axis=0).astype(np.float32),
-                 best_normalised=best.astype(np.float32), weight=weight, automatic=automatic)
+                 best_normalised=best.astype(np.float32), weight=weight, automatic=automatic,
+                 n_cells=float(np.mean(counts)))
 

@@ -5,9 +5,11 @@ reads beside them.
 JPEG, vectorised by condor.moulds.read_picture) in the checkpoint's scene, or reads its input
 channels as a .npy array; warns where the mould lies outside the training moulds and
 gives the domain verdict measured outside the run (condor.findings' out-of-domain table);
-predicts the fields and their spread; summarises the whole mould's statistics with one
-simulation's predicted spread, calibrated by the spread factors measured outside the run (the
-findings' spread calibration); and writes a CF Zarr store (with every attribute) or a picture.
+predicts the fields and their spread; checks the prediction by simulation where that is
+cheap (condor.stages.check), and then answers with the best estimate of the prediction and the
+simulations combined; summarises the answer's whole-mould statistics with one simulation's
+predicted spread, calibrated by the spread factors measured outside the run (the findings'
+spread calibration); and writes a CF Zarr store (with every attribute) or a picture.
 """
 
 from __future__ import annotations
@@ -27,7 +29,7 @@ from condor.moulds.mould import input_channels
 from condor.moulds.read import load_placement
 from condor.moulds.read_picture import PICTURE_SUFFIXES
 from condor.prediction_page import prediction_panels
-from condor.stages.check import AUTO, check_count, check_prediction
+from condor.stages.check import AUTO, check_count, check_prediction, checked_answer
 from condor.surrogate.modes import DEFAULT_PRECISION
 
 # a mould itself (a picture is read as one: condor.moulds.read_picture); a .npy is its masks
@@ -41,18 +43,21 @@ class PredictError(ValueError):
 
 @dataclass
 class PredictedMould:
-    """What predict_mould wrote and says: the prediction, the whole-mould statistics (None
-    without a pixel size), the note on their spread's calibration, the domain verdict (a mould
-    file's), and the checkpoint's grid and mode."""
+    """What predict_mould wrote and says: the answer (`prediction`: the surrogate's prediction,
+    or after a check the best estimate of it and the simulations combined), its whole-mould
+    statistics (None without a pixel size), the note on their spread's calibration, the domain
+    verdict (a mould file's), the checkpoint's grid and mode, the check and the surrogate's own
+    prediction."""
 
     out: Path
-    prediction: object  # condor.surrogate.predict.Prediction
+    prediction: object  # condor.surrogate.predict.Prediction: the answer written
     table: pd.DataFrame | None
     calibrated: str | None
     verdict: str | None
     native: int
     mode: str
     check: object = None  # condor.stages.check.Check, when predict was asked to check
+    surrogate: object = None  # the surrogate's own Prediction (the answer when not checked)
 
     def lines(self) -> list[str]:
         """What `condor predict` prints when it is done."""
@@ -61,7 +66,9 @@ class PredictedMould:
         lines = [f"{self.out}: 8 fields at {self.native} px, predicted N_c = "
                  f"{self.prediction.n_cells:.1f} ({self.mode} mode)"]
         if self.table is not None:
-            lines += ["whole-mould statistics, predicted (+- one simulation's predicted spread):",
+            what = ("predicted" if self.check is None else
+                    f"best estimate of the prediction and {self.check.n} simulations")
+            lines += [f"whole-mould statistics, {what} (+- one simulation's predicted spread):",
                       format_mould_summary(self.table)]
             if self.calibrated is not None:
                 lines.append(f"  {self.calibrated}")
@@ -80,7 +87,8 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
     .npy) with `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`,
     `picture` (condor.moulds.read_picture.PictureOptions): how a drawing or a picture is read
     and placed (condor.moulds.read.load_placement); `check`: simulate the mould that many
-    times and score the prediction against them (condor.stages.check; a mould file only);
+    times and score the prediction against them (condor.stages.check; a mould file only),
+    after which the answer written is the best estimate of the two (checked_answer);
     `say(line)`: how it was read, and each check simulation; `warn(line)`: each warning.
     Nothing that exists is replaced without `force`, and never a dataset store or a folder
     that predict did not write."""
@@ -110,7 +118,6 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
     if bank is not None:
         verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice, prediction)
     scale = placement.scale if placement is not None else 1.0
-    table, calibrated = statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale)
     checked = None
     n_check = check_count(check, float(prediction.n_cells), scene) if placement else 0
     if n_check:
@@ -123,11 +130,15 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
             if check != AUTO:
                 raise
             warn(f"the automatic check did not run: {err}")
+    answer = checked_answer(prediction, checked)
+    table, calibrated = statistics_with_spread(predictor, answer, inputs, l0_um, warn, scale)
     if out.suffix.lower() == ".png":
-        prediction_panels(inputs, prediction, out, summary=table, verdict=verdict,
+        what = "predicted" if checked is None else "best estimate of the"
+        prediction_panels(inputs, answer, out, summary=table, verdict=verdict,
                           pixel_size=predictor.pixel_size, l0_um=l0_um, scale=scale,
-                          title=f"{Path(mould).name}: predicted organisation, "
-                                f"{float(prediction.n_cells):.0f} cells", check=checked)
+                          title=f"{Path(mould).name}: {what} organisation, "
+                                f"{float(prediction.n_cells):.0f} cells", check=checked,
+                          surrogate=prediction)
     else:
         from condor.surrogate.prediction_zarr import write_prediction
 
@@ -135,10 +146,10 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
                                  calibrated)
         if novelty is not None:
             attrs["novelty"] = novelty
-        write_prediction(out, prediction, inputs, predictor.pixel_size, attrs, overwrite=force,
-                         l0_um=l0_um, scale=scale, check=checked)
-    return PredictedMould(out, prediction, table, calibrated, verdict, predictor.native,
-                          predictor.mode, checked)
+        write_prediction(out, answer, inputs, predictor.pixel_size, attrs, overwrite=force,
+                         l0_um=l0_um, scale=scale, check=checked, surrogate=prediction)
+    return PredictedMould(out, answer, table, calibrated, verdict, predictor.native,
+                          predictor.mode, checked, prediction)
 
 
 def check_output(out, force: bool) -> Path:

@@ -1,6 +1,7 @@
 """A prediction as an xarray Dataset with CF attributes, written as a Zarr store
-(`write_prediction`): the fields raw and normalised, their spread, the inputs, and x/y in mm
-given the cell spacing. (A picture of it: condor.prediction_page.prediction_panels.)"""
+(`write_prediction`): the fields raw and normalised (after a check, the best estimate, beside
+the surrogate's own and the simulations'), their spread, the inputs, and x/y in mm given the
+cell spacing. (A picture of it: condor.prediction_page.prediction_panels.)"""
 
 from __future__ import annotations
 
@@ -54,24 +55,30 @@ def grid_coordinates(n: int, pixel_size: float | None, l0_um: float | None = Non
 
 def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: float | None,
                        attrs: dict | None = None, l0_um: float | None = None,
-                       scale: float = 1.0, check=None):
-    """One prediction as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
+                       scale: float = 1.0, check=None, surrogate: Prediction | None = None):
+    """One answer as an xarray.Dataset: `raw` and `normalised` (field, y, x), `spread`
     (field, y, x; when the checkpoint predicts it), `inputs` (channel, y, x); with `check`
-    (condor.stages.check.Check) the simulations' `simulated`, `simulated_sd` and
-    `simulated_normalised` (field, y, x), their combination with the prediction `best`
-    (normalised fields) and the check's numbers (attribute `check`); x/y pixel
-    centres (grid_coordinates: in mm given l0_um, else l0; pixels when pixel_size is None),
-    every variable and coordinate with CF `units` and `long_name`."""
+    (condor.stages.check.Check), whose best estimate `prediction` then is
+    (condor.stages.check.checked_answer), the surrogate's own prediction `surrogate_raw` and
+    `surrogate_normalised`, the simulations' `simulated`, `simulated_sd` and
+    `simulated_normalised` (field, y, x) and the check's numbers (attribute `check`); the
+    attribute `answer` says which the fields are; x/y pixel centres (grid_coordinates: in mm
+    given l0_um, else l0; pixels when pixel_size is None), every variable and coordinate with
+    CF `units` and `long_name`."""
     n = inputs.shape[-1]
     per_field = {"field_long_names": [FIELD_LONG_NAMES[f] for f in FIELD_NAMES]}
+    checked = check is not None and check.best_normalised is not None
+    what = (f"best estimate of the expected fields: the surrogate's prediction and the mean of "
+            f"{check.n} simulations weighed by their measured errors "
+            f"(condor.stages.check.best_estimate, {100 * check.weight:.0f}% the prediction's)"
+            if checked else "predicted expected fields")
     variables = {
         "raw": (("field", "y", "x"), prediction.raw,
-                {"long_name": "predicted expected fields: per pixel, the kernel-weighted sum over "
-                 "cells (P in cells; T in the model's tension units)", "units": "1",
-                 **per_field}),
+                {"long_name": f"{what}: per pixel, the kernel-weighted sum over cells (P in "
+                 "cells; T in the model's tension units)", "units": "1", **per_field}),
         "normalised": (("field", "y", "x"), prediction.normalised,
-                       {"long_name": "predicted expected fields, normalised per cell (raw * "
-                        "N_pixels / N_c)", "units": "1", **per_field}),
+                       {"long_name": f"{what}, normalised per cell (raw * N_pixels / N_c)",
+                        "units": "1", **per_field}),
         "inputs": (("channel", "y", "x"), np.asarray(inputs, dtype=np.uint8),
                    {"long_name": "input masks: mould, tether (0/1)", "units": "1"})}
     if prediction.spread is not None:
@@ -91,13 +98,14 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
         variables["simulated_normalised"] = (("field", "y", "x"), check.simulated_normalised,
                                              {"long_name": f"mean normalised fields of {what}",
                                               "units": "1", **per_field})
-        if check.best_normalised is not None:
-            variables["best"] = (("field", "y", "x"), check.best_normalised,
-                                 {"long_name": "best estimate of the expected normalised fields: "
-                                  "the prediction and the simulations' mean weighed by their "
-                                  "measured errors (condor.stages.check.best_estimate)",
-                                  "units": "1", "prediction_weight": float(check.weight),
-                                  **per_field})
+        if checked and surrogate is not None:
+            for name, values in (("surrogate_raw", surrogate.raw),
+                                 ("surrogate_normalised", surrogate.normalised)):
+                variables[name] = (("field", "y", "x"), values,
+                                   {"long_name": "the surrogate's own predicted expected "
+                                    f"fields ({name.split('_')[1]}), before the check",
+                                    "units": "1", "prediction_weight": float(check.weight),
+                                    **per_field})
         attrs = {**(attrs or {}), "check": check.attributes()}
     coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
               "channel": ("channel", ["mould", "tether"], {"long_name": "input channel"}),
@@ -106,13 +114,15 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
     return xr.Dataset(
         variables, coords=coords,
         attrs={"Conventions": "CF-1.10", "n_cells": float(prediction.n_cells),
-               "length_unit": length_unit, **(attrs or {})})
+               "length_unit": length_unit, "answer": "best estimate" if checked else "surrogate",
+               **(attrs or {})})
 
 
 def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
                      pixel_size: float | None = None, attrs: dict | None = None,
                      overwrite: bool = False, l0_um: float | None = None,
-                     scale: float = 1.0, check=None) -> None:
+                     scale: float = 1.0, check=None,
+                     surrogate: Prediction | None = None) -> None:
     """Write a prediction as a .zarr store (xarray, see prediction_dataset), whole or not at all
     (condor.files.atomic_path); an existing one is replaced only with `overwrite`."""
     path = Path(path)
@@ -121,5 +131,5 @@ def write_prediction(path, prediction: Prediction, inputs: np.ndarray,
     if path.exists() and not overwrite:
         raise FileExistsError(errno.EEXIST, f"prediction store {str(path)!r} exists", str(path))
     with quiet_zarr(), atomic_path(path) as tmp:
-        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale, check).to_zarr(
-            tmp, mode="w-")
+        prediction_dataset(prediction, inputs, pixel_size, attrs, l0_um, scale, check,
+                           surrogate).to_zarr(tmp, mode="w-")
