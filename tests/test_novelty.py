@@ -73,6 +73,8 @@ def test_the_unseen_kinds_line_reads_only_the_held_out_rows():
     assert "median of 7% over 4 families, up to -12% (family annulus)" in line
     assert "study at abc" in line and "--check 4" in line
     assert unseen_kinds_sentence(table[table["family"] == "paper"], "x") is None
+    # where predict checks the mould anyway, the line does not ask for a check
+    assert "--check" not in unseen_kinds_sentence(table, "x", novelty.CHECKED_ADVICE)
 
 
 def test_the_never_drawn_line_counts_the_moulds_above_the_scatter_and_the_worst_tension():
@@ -114,6 +116,10 @@ def test_the_scatter_verdict_flags_tight_moulds_with_the_error_measured_that_tig
     assert "lay 1.5x [0.9, 2.5]" in tight and "80% above it" in tight
     assert numbers["outside"] and numbers["expected_error_ratio"] == 1.5
     assert numbers["inverse_spread"] == 25.0 and numbers["novelty"] == 1.1
+    assert novelty.CHECK_ADVICE in tight
+    checking, _ = novelty.novelty_verdict(25.0, calibration, 20.0, "here", "inverse_spread",
+                                          1.1, novelty.CHECKED_ADVICE)
+    assert "TIGHT" in checking and novelty.CHECKED_ADVICE in checking and "--check" not in checking
     loose, numbers = novelty.novelty_verdict(12.0, calibration, 20.0, "here", "inverse_spread")
     assert "TIGHT" not in loose and "within one simulation's scatter" in loose
     assert not numbers["outside"] and numbers["expected_error_ratio"] == 0.8

@@ -115,11 +115,12 @@ def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=Non
                            "TIFF, JPEG), not its masks")
     inputs, n_cells, lattice = mould_inputs(predictor, mould, placement, warn)
     prediction = predictor(inputs, n_cells=n_cells, lattice=lattice)  # None: from the pixels
+    n_check = check_count(check, float(prediction.n_cells), scene) if placement else 0
     if bank is not None:
-        verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice, prediction)
+        verdict, novelty = mould_novelty_verdict(predictor, bank, inputs, lattice, prediction,
+                                                 checking=bool(n_check))
     scale = placement.scale if placement is not None else 1.0
     checked = None
-    n_check = check_count(check, float(prediction.n_cells), scene) if placement else 0
     if n_check:
         say(f"checking by {n_check} simulations of the mould ({scene.name} scene)")
         try:
@@ -210,16 +211,17 @@ def mould_domain_verdict(mould, scene: Scene) -> str:
                       f"{measured.experiment} at {measured.commit}")
 
 
-def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
-                          prediction) -> tuple[str, dict]:
+def mould_novelty_verdict(predictor, bank: dict, inputs, lattice, prediction,
+                          checking: bool = False) -> tuple[str, dict]:
     """How new the mould is to the checkpoint (condor.surrogate.novelty: its features' distance
     to the training moulds') and the verdict of the shipped calibration (condor.findings'
     "novelty", experiments/generalisation): by the score it calibrates, the feature distance or
     inverse_spread (one over the RMS of the prediction's spread map), with what was measured on
-    moulds of that score: the verdict's lines and its numbers."""
+    moulds of that score: the verdict's lines and its numbers. `checking`: predict checks the
+    mould by simulation, so the verdict points there instead of advising a check."""
     from condor.surrogate.novelty import (
-        SCORES, inverse_spread, mould_novelty, network_inputs, never_drawn_sentence,
-        novelty_verdict, unseen_kinds_sentence,
+        CHECK_ADVICE, CHECKED_ADVICE, SCORES, inverse_spread, mould_novelty, network_inputs,
+        never_drawn_sentence, novelty_verdict, unseen_kinds_sentence,
     )
 
     x = network_inputs(predictor.inputs_kind, np.asarray(inputs)[None],
@@ -242,14 +244,16 @@ def mould_novelty_verdict(predictor, bank: dict, inputs, lattice,
     score = distance if name == "feature_distance" else float(
         inverse_spread(np.asarray(prediction.spread)[None],
                        np.asarray(prediction.normalised)[None])[0])
+    advice = CHECKED_ADVICE if checking else CHECK_ADVICE
     text, numbers = novelty_verdict(score, finding.frame(), float(finding.values["threshold"]),
                                     f"{finding.experiment} at {finding.commit}", name,
-                                    distance)
+                                    distance, advice)
     measured, drawn = findings.get("generalisation"), findings.get("never_drawn")
     lines = [text]
     if measured is not None:
         lines.append(unseen_kinds_sentence(measured.frame(),
-                                           f"{measured.experiment} at {measured.commit}"))
+                                           f"{measured.experiment} at {measured.commit}",
+                                           advice))
     if drawn is not None:
         lines.append(never_drawn_sentence(drawn.frame(), f"{drawn.experiment} at {drawn.commit}"))
     return "\n  ".join(line for line in lines if line), numbers

@@ -242,9 +242,16 @@ def mould_novelty(model, inputs_kind: str, bank: dict, x: np.ndarray) -> np.ndar
     return knn_distance(bank["features"], features(model, inputs_kind, x))
 
 
+# what a verdict advises where the surrogate may be off, and what it says where `predict`
+# checks the mould by simulation anyway (condor.stages.check: by default at the default scene)
+CHECK_ADVICE = "check it by simulation (--check 4)"
+CHECKED_ADVICE = "the check by simulation below says how far"
+
+
 def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
                     provenance: str, name: str = "feature_distance",
-                    distance: float | None = None) -> tuple[str, dict]:
+                    distance: float | None = None,
+                    advice: str = CHECK_ADVICE) -> tuple[str, dict]:
     """Short lines on a mould's calibrated `score` (`name`: "feature_distance", its novelty, or
     "inverse_spread", one over the RMS of its spread map; the feature `distance` beside the
     latter): inside or outside (above `threshold`), and the error measured on moulds of that
@@ -264,7 +271,7 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
                 f"{row.share_above_ceiling:.0%} above it ({provenance})")
     if name == "feature_distance":
         numbers["novelty"] = float(score)
-        state = ("OUTSIDE what it learnt: check it by simulation (--check 4)" if outside else
+        state = (f"OUTSIDE what it learnt: {advice}" if outside else
                  "inside what it learnt")
         return (f"novelty {score:.2f} (1 is typical of its training moulds, flagged above "
                 f"{threshold:.2g}): {state}\n  {measured}"), numbers
@@ -272,7 +279,7 @@ def novelty_verdict(score: float, calibration: pd.DataFrame, threshold: float,
     if distance is not None:
         numbers["novelty"] = float(distance)
     state = ("TIGHT: one simulation strays so little that the surrogate's error may exceed "
-             "it: check it by simulation (--check 4)" if outside else
+             f"it: {advice}" if outside else
              "its error is likely within one simulation's scatter")
     new = "" if distance is None else (f"novelty {distance:.2f} (1 is typical of its "
                                        "training moulds); ")
@@ -298,7 +305,8 @@ def never_drawn_sentence(moulds: pd.DataFrame, provenance: str) -> str | None:
             f"{float(worst['tension_bias']):+.0%} (a {worst['kind']}) ({provenance})")
 
 
-def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str) -> str | None:
+def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str,
+                          advice: str = CHECK_ADVICE) -> str | None:
     """One line on the whole-mould mean tension of kinds of mould the surrogate never trained
     on, from the generalisation finding's held-out rows (a family scored by a model that did not
     see it): the median |bias| over the families and the largest, with its family. The feature
@@ -313,4 +321,5 @@ def unseen_kinds_sentence(generalisation: pd.DataFrame, provenance: str) -> str 
     return (f"on kinds of mould it never trained on, its mean tension was off by a median of "
             f"{bias.abs().median():.0%} over {len(held)} families, up to "
             f"{float(worst['tension_bias']):+.0%} (family {worst['family']}) ({provenance}): a new kind "
-            "of mould's whole-mould numbers deserve a check by simulation (--check 4)")
+            "of mould's whole-mould numbers deserve a check by simulation"
+            + ("" if advice == CHECKED_ADVICE else " (--check 4)"))
