@@ -607,11 +607,14 @@ def test_predict_checks_itself_by_default_and_writes_the_simulations_beside_it(
     assert np.all(written["simulated_sd"].values >= 0)
     # the answer written is the best estimate: between the surrogate's own prediction and the
     # simulations' mean, raw and normalised alike (sum P the mould's cells)
-    weight = written["surrogate_normalised"].attrs["prediction_weight"]
+    attrs = written["surrogate_normalised"].attrs
+    weight, tension = attrs["prediction_weight"], attrs["prediction_tension_weight"]
     assert 0 <= weight <= 1 and weight == check["best_weight"]
+    assert 0 <= tension <= 1 and tension == check["best_tension_weight"]
     assert written.attrs["answer"] == "best estimate"
-    np.testing.assert_allclose(written["normalised"].values, weight
-                               * written["surrogate_normalised"].values + (1 - weight)
+    w = np.where(np.arange(8) == 1, tension, weight)[:, None, None]  # T (field 1) apart
+    np.testing.assert_allclose(written["normalised"].values, w
+                               * written["surrogate_normalised"].values + (1 - w)
                                * written["simulated_normalised"].values, rtol=1e-4, atol=1e-6)
     answer_raw = written["raw"].values.astype(np.float64)
     assert answer_raw[0].sum() == pytest.approx(cells, rel=1e-3)

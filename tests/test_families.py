@@ -81,7 +81,7 @@ def test_a_check_scores_the_prediction_against_the_same_simulations_run_directly
                                rtol=1e-4, atol=1e-6)
     assert check.attributes()["simulations"] == 3 and not check.automatic
     # the replicas' own mean as the prediction: no error, so it keeps all the weight
-    assert check.weight == 1.0
+    assert check.weight == 1.0 and check.tension_weight == 1.0
     np.testing.assert_allclose(check.best_normalised, mean, rtol=1e-5, atol=1e-7)
     tension = check.table.set_index("statistic").loc["mean_tension"]
     assert tension.simulated == pytest.approx(np.mean([s["mean_tension"] for s in stats]))
@@ -111,8 +111,11 @@ def test_predict_checks_by_default_only_where_simulations_are_cheap():
 def test_the_best_estimate_weighs_prediction_and_simulations_by_their_errors():
     """Synthetic draws with a known truth: replicas = truth + noise sigma, a prediction off by
     a known amount. best_estimate's weight is the prediction's share the known errors give,
-    (sigma^2 / N) / (b^2 + sigma^2 / N), within the draws' chance; over many draws its squared
-    error against the truth is below both the prediction's and the replicas' mean's."""
+    (sigma^2 / N) / (b^2 + sigma^2 / N), within the draws' chance, for the tension and for the
+    other fields alike; over many draws its squared error against the truth is below both the
+    prediction's and the replicas' mean's. A prediction exact in all but its tension keeps its
+    weight in the other fields and loses it in the tension, whose values are tiny beside
+    theirs (the normalised T of a simulation)."""
     rng = np.random.default_rng(7)
     truth = rng.uniform(0, 1, (8, 16, 16))
     sigma, n = 0.2, 4
@@ -123,11 +126,21 @@ def test_the_best_estimate_weighs_prediction_and_simulations_by_their_errors():
             reps = truth + rng.normal(0, sigma, (n,) + truth.shape)
             predicted = truth + bias * rng.choice([-1.0, 1.0], truth.shape)
             best, weight = best_estimate(predicted, reps)
-            weights.append(weight)
+            assert weight.shape == (8,) and np.all(weight[2:] == weight[0])
+            weights.append(weight[:2])
             for name, f in (("best", best), ("prediction", predicted), ("mean", reps.mean(0))):
                 errors[name].append(np.mean((f - truth) ** 2))
-        assert np.median(weights) == pytest.approx(expected_weight, abs=0.05)
+        np.testing.assert_allclose(np.median(weights, axis=0), expected_weight, atol=0.05)
         mse = {k: np.mean(v) for k, v in errors.items()}
         assert mse["best"] < min(mse["prediction"], mse["mean"])
     exact, weight = best_estimate(truth, truth + rng.normal(0, sigma, (n,) + truth.shape))
-    assert weight > 0.9  # a prediction at the truth keeps (nearly) all the weight
+    assert np.all(weight > 0.9)  # a prediction at the truth keeps (nearly) all the weight
+    small = truth.copy()
+    small[1] *= 1e-3  # T: tiny values with a noise of about 1% of them (sd 2e-6 a pixel)
+    reps = small + rng.normal(0, sigma, (n,) + small.shape) * np.where(
+        np.arange(8) == 1, 1e-5, 1.0)[:, None, None]
+    off = small.copy()
+    off[1] *= 1.3  # 30% off in tension alone: far beyond its noise, nothing beside P's
+    best, weight = best_estimate(off, reps)
+    assert weight[1] < 0.05 and weight[0] > 0.95
+    assert abs(best[1].sum() / small[1].sum() - 1) < 0.02  # the replicas' tension, not 30% off

@@ -56,14 +56,14 @@ def ratio(predicted, replicas):
 
 
 def combined(predicted, replicas):
-    """(the replicas' mean, the prediction and that mean combined, the prediction's weight):
-    condor.stages.check.best_estimate, weights by the prediction's measured error and the
-    mean's noise."""
+    """(the replicas' mean, the prediction and that mean combined, the prediction's weight in
+    density and orientation): condor.stages.check.best_estimate, weights by the prediction's
+    measured error and the mean's noise (the tension weighed apart since 2026-12-07)."""
     from condor.stages.check import best_estimate
 
     reps = np.asarray(replicas, dtype=np.float64)
-    best, weight = best_estimate(predicted, reps)
-    return reps.mean(axis=0), best, weight
+    best, weights = best_estimate(predicted, reps)
+    return reps.mean(axis=0), best, float(weights[0])
 
 
 def moulds_to_score(a, scene):

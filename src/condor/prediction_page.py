@@ -146,7 +146,8 @@ def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
                      f"{check.ratio:.2f}x one simulation's scatter from their mean"
                      + (" (off on this mould)" if check.ratio > 1 else "")
                      + ("; the fields above combine the two, "
-                        f"{100 * check.weight:.0f}% the surrogate's"
+                        f"{100 * check.weight:.0f}% the surrogate's "
+                        f"({100 * check.tension_weight:.0f}% in tension)"
                         if check.best_normalised is not None else ""))
     fig.set_figheight(2.9 * nrows + 0.18 * len(lines))
     fig.suptitle("\n".join(lines), fontsize=9, x=0.01, ha="left")

@@ -70,7 +70,8 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
     checked = check is not None and check.best_normalised is not None
     what = (f"best estimate of the expected fields: the surrogate's prediction and the mean of "
             f"{check.n} simulations weighed by their measured errors "
-            f"(condor.stages.check.best_estimate, {100 * check.weight:.0f}% the prediction's)"
+            f"(condor.stages.check.best_estimate: {100 * check.weight:.0f}% the prediction's in "
+            f"density and orientation, {100 * check.tension_weight:.0f}% in tension)"
             if checked else "predicted expected fields")
     variables = {
         "raw": (("field", "y", "x"), prediction.raw,
@@ -105,6 +106,7 @@ def prediction_dataset(prediction: Prediction, inputs: np.ndarray, pixel_size: f
                                    {"long_name": "the surrogate's own predicted expected "
                                     f"fields ({name.split('_')[1]}), before the check",
                                     "units": "1", "prediction_weight": float(check.weight),
+                                    "prediction_tension_weight": float(check.tension_weight),
                                     **per_field})
         attrs = {**(attrs or {}), "check": check.attributes()}
     coords = {"field": ("field", list(FIELD_NAMES), {"long_name": "field name"}),
