@@ -8,8 +8,10 @@ against the replicas' mean with the finite-replica noise removed (condor.measure
 as every accuracy figure of the project), beside one simulation's scatter about that mean (the
 noise ceiling). The whole-mould statistics are given both ways, under the same names
 (condor.surrogate.answer.statistics): predicted, and simulated (mean and standard deviation of
-the replicas). The surrogate's worth is in ranking thousands of moulds; a check is how a user
-trusts it on theirs (docs/user_moulds.md).
+the replicas). `predict` then answers with the best estimate of the prediction and the
+replicas' mean, weighed by their measured errors (`best_estimate`, `checked_answer`). The
+surrogate's worth is in ranking thousands of moulds; a check is how a user trusts it on theirs
+(docs/user_moulds.md).
 """
 
 from __future__ import annotations
