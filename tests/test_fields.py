@@ -477,3 +477,25 @@ def test_statistics_table_has_one_row_per_sample():
 def test_bad_input_raises_value_error_naming_it(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+def test_axes_average_and_differ_across_the_wrap_at_180_degrees():
+    """Axes in degrees: 89 and -89 lie 2 degrees apart, their mean axis is 90 (= -90), and
+    the spread is that of the doubled angles (brute force: the nearest of a - b + 180 k; a
+    tight cluster's spread is its plain standard deviation, population form)."""
+    from condor.data.statistics import axial_difference, axial_mean_sd
+
+    rng = np.random.default_rng(3)
+    for a, b in rng.uniform(-90, 90, (50, 2)):
+        nearest = min((a - b + 180 * k for k in (-1, 0, 1)), key=abs)
+        assert axial_difference(a, b) == pytest.approx(nearest)
+    assert axial_difference(74.91, -73.51) == pytest.approx(-31.58)
+    mean, spread = axial_mean_sd([89.0, -89.0])
+    assert abs(axial_difference(mean, 90.0)) < 1e-9 and spread == pytest.approx(1.0, rel=1e-3)
+    cluster = 30.0 + rng.normal(0, 0.5, 400)
+    mean, spread = axial_mean_sd(cluster)
+    assert mean == pytest.approx(np.mean(cluster), abs=1e-3)
+    assert spread == pytest.approx(np.std(cluster), rel=1e-2)
+    shifted = ((cluster + 60.0 + 90.0) % 180.0) - 90.0  # across the wrap: 90 -> -90
+    assert axial_difference(axial_mean_sd(shifted)[0], np.mean(cluster) + 60.0) == \
+        pytest.approx(0.0, abs=1e-3)

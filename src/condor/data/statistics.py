@@ -107,6 +107,24 @@ def mould_summary_statistics(normalised: np.ndarray, n_cells: float, pixel_size:
             "tissue_area": float(area)}
 
 
+def axial_mean_sd(degrees) -> tuple[float, float]:
+    """The mean and spread of axes given as angles in degrees (an axis at 90 is the one at
+    -90; `direction`): half the angle of the mean of the doubled angles' unit vectors, in
+    (-90, 90], and half the circular standard deviation of the doubled angles, sqrt(-2 ln R)."""
+    doubled = np.radians(2 * np.asarray(degrees, dtype=np.float64))
+    c, s = float(np.cos(doubled).mean()), float(np.sin(doubled).mean())
+    length = math.hypot(c, s)
+    spread = 0.5 * math.degrees(math.sqrt(max(-2 * math.log(length), 0.0))) if length > 0 \
+        else math.inf
+    return 0.5 * math.degrees(math.atan2(s, c)), spread
+
+
+def axial_difference(a: float, b: float) -> float:
+    """a - b for axes in degrees, wrapped to (-90, 90]: 89 and -89 lie 2 degrees apart."""
+    d = (float(a) - float(b)) % 180.0
+    return d - 180.0 if d > 90.0 else d
+
+
 def statistics_table(
     fields_batch: np.ndarray, pixel_size: float, n_cells: np.ndarray | None = None
 ) -> pd.DataFrame:

@@ -26,6 +26,7 @@ import pandas as pd
 
 from condor.data.fields import FIELD_NAMES, cell_fields, normalise
 from condor.data.seeds import replica_seed
+from condor.data.statistics import axial_difference, axial_mean_sd
 from condor.measures import estimators as est
 from condor.model.scenes import Scene
 from condor.model.simulate import DEFAULT_SOLVER
@@ -218,11 +219,16 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
     rows = []
     for name in predicted_stats:
         values = np.array([s[name] for s in stats], dtype=np.float64)
-        mean, sd = float(np.mean(values)), float(np.std(values, ddof=1))
         value = float(predicted_stats[name])
+        if name == "direction":  # an axis: its mean, spread and difference wrap at 180 degrees
+            mean, sd = axial_mean_sd(values)
+            difference = axial_difference(value, mean)
+        else:
+            mean, sd = float(np.mean(values)), float(np.std(values, ddof=1))
+            difference = value - mean
         rows.append({"statistic": name, "predicted": value, "simulated": mean,
                      "simulated_sd": sd,
-                     "difference_in_sd": (value - mean) / sd if sd > 0 else math.nan})
+                     "difference_in_sd": difference / sd if sd > 0 else math.nan})
     raws = np.stack(raws).astype(np.float64)
     best, weights = best_estimate(predicted[0], replicas[0])
     return Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),

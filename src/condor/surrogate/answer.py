@@ -41,7 +41,7 @@ import numpy as np
 import pandas as pd
 
 from condor.data.fields import FIELD_NAMES
-from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS
+from condor.data.statistics import MOULD_STATISTICS, STATISTIC_UNITS, axial_mean_sd
 # one home: data.statistics
 from condor.data.statistics import mould_summary_statistics as statistics
 
@@ -84,9 +84,7 @@ def mould_summary(normalised, n_cells: float, pixel_size: float, spread=None,
                  for d in spread_draws(normalised, spread, sigma_px, draws, seed)]
         for name in values:
             if name == "direction":  # an axis: spread of the angle about the mean, wrapped
-                angles = np.radians([2 * row[name] for row in drawn])
-                length = np.hypot(np.cos(angles).mean(), np.sin(angles).mean())
-                spreads[name] = 0.5 * math.degrees(math.sqrt(max(-2 * math.log(length), 0.0)))
+                spreads[name] = axial_mean_sd([row[name] for row in drawn])[1]
             else:
                 spreads[name] = float(np.std([row[name] for row in drawn], ddof=1))
             if factors is not None:
