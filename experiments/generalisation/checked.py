@@ -34,6 +34,7 @@ from condor.data.dataset import mould_geometry  # noqa: E402
 from condor.data.fields import cell_fields, normalise  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.data.store import open_store  # noqa: E402
+from condor.files import atomic_path, write_text  # noqa: E402
 from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.model.scenes import Scene  # noqa: E402
 from condor.model.simulate import DEFAULT_SOLVER  # noqa: E402
@@ -69,7 +70,8 @@ def check_simulations(ds, scene: Scene, mould_id: int, n: int, cache: Path) -> n
                           scene.pixels, scene.sigma)
         fields.append(normalise(raw, len(result.positions)))
     out = np.stack(fields).astype(np.float32)
-    np.save(path, out)
+    with atomic_path(path) as tmp, open(tmp, "wb") as handle:  # whole or not at all
+        np.save(handle, out)
     return out
 
 
@@ -147,8 +149,8 @@ def main(argv=None) -> int:
                "error_hi", "noise_ceiling", "tension_bias", "tension_bias_lo",
                "tension_bias_hi"]
     a.out.mkdir(parents=True, exist_ok=True)
-    pd.concat(rows, ignore_index=True)[columns].to_csv(a.out / "checked.csv", index=False)
-    pd.concat(moulds, ignore_index=True).to_csv(a.out / "checked_moulds.csv", index=False)
+    write_text(a.out / "checked.csv", pd.concat(rows, ignore_index=True)[columns].to_csv(index=False))
+    write_text(a.out / "checked_moulds.csv", pd.concat(moulds, ignore_index=True).to_csv(index=False))
     return 0
 
 

@@ -108,7 +108,8 @@ def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
     from matplotlib.colors import ListedColormap
 
     if check is not None and check.simulated is not None:
-        own = page_fields((surrogate or prediction).raw, None, pixel_size, l0_um)[0][1]
+        own = (None if surrogate is None  # the surrogate's own density, when it is not drawn
+               else page_fields(surrogate.raw, None, pixel_size, l0_um)[0][1])
         panels, simulated = check_panels(panels, check, pixel_size, l0_um, own)
     else:
         simulated = []

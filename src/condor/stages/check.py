@@ -16,10 +16,9 @@ surrogate's worth is in ranking thousands of moulds; a check is how a user trust
 
 from __future__ import annotations
 
-import dataclasses
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import pandas as pd
@@ -158,8 +157,8 @@ def checked_answer(prediction, check):
     n_cells = check.n_cells if math.isfinite(check.n_cells) else float(prediction.n_cells)
     raw = best * n_cells / (best.shape[-2] * best.shape[-1])
     dtype = np.asarray(prediction.raw).dtype
-    return dataclasses.replace(prediction, raw=raw.astype(dtype), normalised=best.astype(dtype),
-                               n_cells=n_cells)
+    return replace(prediction, raw=raw.astype(dtype), normalised=best.astype(dtype),
+                   n_cells=n_cells)
 
 
 def check_count(check, n_cells: float, scene: Scene) -> int:
