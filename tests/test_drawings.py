@@ -443,6 +443,48 @@ def test_training_domain_rules():
     assert any("radii 3, 0.1 l0 (tethers 0, 1)" in w for w in warnings)
 
 
+def test_extent_warns_past_the_training_moulds_largest_not_at_it():
+    """A checkpoint's ranges: a mould whose larger side lies within EXTENT_WARN of the training
+    moulds' largest (where --fit puts a long mould: the window's 0.9 against the default run's
+    0.8997) is not warned about; 5% past it is, naming both extents."""
+    from condor.moulds.domain import EXTENT_WARN, TrainingRanges
+
+    box = TINY.box
+    ranges = TrainingRanges(area=(0.01, 0.9), extent=0.8, posts=(0, 8),
+                            post_radius=(0.0, 0.1), source="its 9 training moulds")
+
+    def strip(extent):
+        c, half = box / 2, extent * box / 2
+        return Mould(box=box, polygon=shapely_box(c - half, c - 1.5, c + half, c + 1.5),
+                     tethers=np.zeros((0, 3)))
+
+    near = 0.8 * (1 + EXTENT_WARN / 2)
+    assert not [w for w in training_domain_check(strip(near), TINY, ranges) if "width" in w]
+    (warning,) = [w for w in training_domain_check(strip(0.84), TINY, ranges) if "width" in w]
+    assert "0.84 of the box" in warning and "at most 0.8" in warning
+
+
+def test_a_middle_post_of_a_training_posts_size_is_not_questioned():
+    """A strip on three posts: its middle post holds the centroid and spans over
+    MIDDLE_POST of the strip's width, but is no larger than a training post: a post, not a
+    hole. The same post at twice the largest training radius is questioned."""
+    from condor.moulds.domain import TRAINING_TETHER_RADIUS
+    from condor.moulds.place import Placement
+
+    box = TINY.box
+    c, largest = box / 2, TRAINING_TETHER_RADIUS[1] * box
+    polygon = shapely_box(c - 6, c - 1.2, c + 6, c + 1.2)
+
+    def placed(radius):
+        tethers = np.array([[c - 5, c, 0.5], [c, c, radius], [c + 5, c, 0.5]])
+        return Placement(Mould(box=box, polygon=polygon, tethers=tethers))
+
+    assert 2 * 0.9 * largest >= 0.4 * 2.4  # the middle rule's size condition holds
+    assert placed(0.9 * largest).questions() == []
+    (question,) = placed(1.1 * largest).questions()
+    assert question.startswith("post 2") and "holds the middle of the mould" in question
+
+
 def test_hidden_tethers_match_the_input_channel():
     """The 'covers no pixel centre' warning names exactly the tethers whose disk marks no
     pixel of input_channels (checked tether by tether)."""

@@ -501,8 +501,9 @@ def _parser_predict(sub) -> None:
                         "auto takes it where it is native (default: %(default)s)")
     p.add_argument("--check", type=_check_arg, default="auto", metavar="N",
                    help="simulate the mould N times with the dataset's solver and score the "
-                        "prediction against them, writing their mean beside it (N >= 2; 0: no "
-                        "check). Default auto: 4 simulations where the mould holds at most "
+                        "prediction against them; the answer written is then the prediction "
+                        "and their mean weighed by their measured errors, the surrogate's own "
+                        "kept beside it (N >= 2; 0: no check, the surrogate's answer). Default auto: 4 simulations where the mould holds at most "
                         "4,000 cells (the default and tiny scenes: seconds in all), none at the "
                         "paper scene")
     _user_mould_args(p)

@@ -21,8 +21,9 @@ from condor.moulds.units import length_text
 FIT_MODES = ("area", "extent")  # --fit: the training moulds' area (capped by the window), or the window
 # What was read is questioned (Placement.questions) for a post whose radius is more than
 # LARGE_POST times the training posts' largest (TRAINING_TETHER_RADIUS, box sides), or one
-# that holds the outline's centroid and is at least MIDDLE_POST of the outline's smaller
-# side across: most often a hole drawn as a circle.
+# larger than every training post that holds the outline's centroid and is at least
+# MIDDLE_POST of the outline's smaller side across: most often a hole drawn as a circle. A
+# middle post of a training post's size is a post (a strip's middle post, a ring's centre).
 LARGE_POST = 1.5
 MIDDLE_POST = 0.4
 
@@ -78,7 +79,7 @@ class Placement:
             if r > LARGE_POST * largest:
                 why.append(f"is {r / largest:.2g} times the largest training post's radius "
                            f"({TRAINING_TETHER_RADIUS[1]:g} of the box)")
-            if math.hypot(centroid.x - x, centroid.y - y) < r and \
+            if math.hypot(centroid.x - x, centroid.y - y) < r and r > largest and \
                     2 * r >= MIDDLE_POST * min(xmax - xmin, ymax - ymin):
                 why.append("holds the middle of the mould")
             if why:
