@@ -81,14 +81,15 @@ class PredictedMould:
 
 def predict_mould(checkpoint, mould, out, *, l0_um: float | None = None, fit=None,
                   units: str | None = None, device=None, mode: str | None = None,
-                  precision: str = DEFAULT_PRECISION, force: bool = False, check: int = 0,
+                  precision: str = DEFAULT_PRECISION, force: bool = False, check: int | str = AUTO,
                   picture=None, say=print, warn=print) -> PredictedMould:
     """Predict mould `mould` (a mould file or a picture of it, or its input channels as a
     .npy) with `checkpoint` and write `out` (.zarr or .png). `l0_um`, `fit`, `units`,
     `picture` (condor.moulds.read_picture.PictureOptions): how a drawing or a picture is read
     and placed (condor.moulds.read.load_placement); `check`: simulate the mould that many
     times and score the prediction against them (condor.stages.check; a mould file only),
-    after which the answer written is the best estimate of the two (checked_answer);
+    after which the answer written is the best estimate of the two (checked_answer); AUTO,
+    the default as on the command line: AUTO_CHECK simulations where they take seconds;
     `say(line)`: how it was read, and each check simulation; `warn(line)`: each warning.
     Nothing that exists is replaced without `force`, and never a dataset store or a folder
     that predict did not write."""
