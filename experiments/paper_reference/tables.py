@@ -7,7 +7,11 @@ Writes experiments/paper_reference/ladder_<scene>.csv from the shipped data prod
 (src/condor/paper_reference/): for each rung below the top, its distance to
 the next rung up (noise-corrected, RMS over the 8 normalised fields, bootstrap over moulds),
 the replica noise of the upper rung, the cell-averaged orientations and energies, and
-whether the pair is unresolved by the bar (upper 95% bound <= 0.5 x the noise). Only moulds
+whether the pair is unresolved by the bar (upper 95% bound <= 0.5 x the noise). Run k of
+every rung shares its seed (`reference_seed` does not depend on the budget), and the runs
+stay alike from rung to rung, so the distance is the paired one (`paired_distance`;
+`--unpaired`: the independent-ensemble estimator of the tables before 2026-12-07, biased low
+here). Only moulds
 with >= 2 finished runs at both rungs count. --pack first adds the run cache's finished runs
 to src/condor/paper_reference/ (one .npz per mould, every run of every rung, each with its commit and
 kernel); run.py does this itself as each run finishes.
@@ -44,6 +48,10 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--out", type=Path, default=None,
                     help="write the table here (default: ladder_<scene>.csv beside this script)")
+    ap.add_argument("--unpaired", action="store_true",
+                    help="score the rungs as independent ensembles (the tables before "
+                         "2026-12-07); by default run k of both is a pair, since it shares its "
+                         "seed (estimators.paired_distance)")
     ap.add_argument("--reference-folder", type=Path, default=None,
                     help="read the runs from this folder (run.py --product) instead of the "
                          "shipped product")
@@ -71,8 +79,10 @@ def main(argv=None) -> int:
                            pad_replicas([data[lower][i][0] for i in keep]),
                            pad_replicas([data[upper][i][0] for i in keep]),
                            energy=pad_replicas([data[lower][i][1] for i in keep]),
-                           ref_energy=pad_replicas([data[upper][i][1] for i in keep]))
+                           ref_energy=pad_replicas([data[upper][i][1] for i in keep]),
+                           paired=not a.unpaired)
         row["moulds"] = " ".join(str(a.moulds[i]) for i in keep)
+        row["paired"] = not a.unpaired
         rows.append(row)
         print(row)
     if rows:

@@ -165,6 +165,24 @@ def ensemble_distance(a, b, per_field: bool = False) -> SquaredError:
     return SquaredError(plain, plain - noise)
 
 
+def paired_distance(a, b, per_field: bool = False) -> SquaredError:
+    """`ensemble_distance` for two ensembles whose replica k share a seed, a (M, Ra, ...) and
+    b (M, Rb, ...): the paper reference's rungs, whose run k starts from the same state with the
+    same random stream at every budget. Over the n pairs k < min(Ra, Rb) where both ran, the
+    differences d_k = a_k - b_k give |mean(d)|^2 - s_d^2 / n, unbiased for |mu_a - mu_b|^2
+    whatever the pairs' correlation. ensemble_distance assumes independent ensembles: paired
+    runs that stay alike make it biased low (it removes noise their difference does not carry),
+    so a ladder of shared seeds reads 'not resolved' too often."""
+    ra, rb = as_replicas(a), as_replicas(b)
+    if ra.shape[:1] + ra.shape[2:] != rb.shape[:1] + rb.shape[2:]:
+        raise ValueError(f"ensembles {ra.shape} and {rb.shape} are not of the same moulds")
+    n = min(ra.shape[1], rb.shape[1])
+    diff = ra[:, :n] - rb[:, :n]  # NaN where either run of a pair is missing (>= 2 pairs:
+    # as_replicas holds each side's first 2 runs present)
+    plain = _reduce(np.nanmean(diff, axis=1) ** 2, per_field)
+    return SquaredError(plain, plain - _reduce(_noise_of_mean(diff), per_field))
+
+
 def root_mean(per_mould) -> float:
     """sqrt of the mean over moulds, floored at 0 (an RMS error from per-mould squared errors)."""
     return float(np.sqrt(max(float(np.mean(per_mould)), 0.0)))

@@ -36,14 +36,16 @@ def mean_orientation(fields) -> np.ndarray:
 
 
 def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
-                 evaluations=None, energy=None, ref_energy=None) -> dict:
+                 evaluations=None, energy=None, ref_energy=None, paired: bool = False) -> dict:
     """One row: `fields` (M, R, 8, H, W) of the method against `ref_fields` (M, R', 8, H, W)
     of the reference, both normalised, the same moulds in the same order; `evaluations`
     (M, R) the method's cost in evaluation-equivalents; `energy`, `ref_energy` (M, R) and
-    (M, R') energies per cell. NaN-padded replicas are allowed (estimators)."""
+    (M, R') energies per cell. NaN-padded replicas are allowed (estimators). `paired`: replica
+    k of both shares its seed (two rungs of the paper reference), so the distance is
+    `estimators.paired_distance`'s, else `ensemble_distance`'s (independent ensembles)."""
     fields = np.asarray(fields, dtype=np.float64)
     ref_fields = np.asarray(ref_fields, dtype=np.float64)
-    d = est.ensemble_distance(fields, ref_fields)
+    d = (est.paired_distance if paired else est.ensemble_distance)(fields, ref_fields)
     distance, lo, hi = est.bootstrap_interval(d.corrected)
     row = {"method": method, "scene": scene, "reference": reference,
            "n_moulds": int(fields.shape[0]),
