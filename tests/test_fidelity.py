@@ -163,3 +163,28 @@ def test_the_paper_ensemble_takes_each_mould_at_its_highest_rung_with_two_runs(t
     pack_mould(cache, scene, 2026, 5, [20, 40], 2, {"commit": "test"}, folder)
     moulds, fields, energy, label = paper_ensemble(scene, 2026, folder)
     assert label == f"anneal {budget_tag(40)}" and fields.shape[1] == 2
+
+
+def test_paired_rungs_pair_run_k_with_run_k_whatever_order_the_runs_were_packed(tmp_path):
+    """Rung 20 holds runs 0, 2 and 1 (packed in that order), rung 40 runs 0 and 2 only: the
+    pairs are (0, 0) and (2, 2), each pair of one seed, in run order; run 1 of rung 20 has no
+    partner and is left out."""
+    from condor.studies.paper_reference import paired_rungs
+
+    scene = get_scene("tiny")
+    cache, folder = tmp_path / "cache", tmp_path / "product"
+    for budget, ks in ((20, (0, 2)), (40, (0, 2))):
+        for k in ks:
+            run_reference(cache, scene, 2026, 5, budget, k)
+        pack_mould(cache, scene, 2026, 5, [20, 40], 3, {"commit": "test"}, folder)
+    run_reference(cache, scene, 2026, 5, 20, 1)
+    pack_mould(cache, scene, 2026, 5, [20, 40], 3, {"commit": "test"}, folder)
+    assert [r.run for r in load_reference("tiny", 2026, 5, 20, folder=folder)] == [0, 1, 2]
+    low, high, e_low, e_high = paired_rungs(scene, 2026, 5, 20, 40, (folder,))
+    assert len(low) == len(high) == 2
+    for i, k in enumerate((0, 2)):
+        for budget, energies in ((20, e_low), (40, e_high)):
+            own = run_reference(cache, scene, 2026, 5, budget, k)  # read from the cache
+            assert own.seed == reference_seed(2026, 5, k)
+            assert energies[i] == own.energy_per_cell
+    assert paired_rungs(scene, 2026, 6, 20, 40, (folder,)) == ([], [], [], [])

@@ -22,7 +22,7 @@ import pandas as pd
 import condor.measures.estimators as est
 from condor.files import write_text
 from condor.model.scenes import get_scene
-from condor.studies.paper_reference import reference_moulds, reference_rung_from
+from condor.studies.paper_reference import paired_rungs, reference_moulds
 
 HERE = Path(__file__).resolve().parent
 # scene -> (the folder of its runs (None: the shipped product), its moulds (None: the product's))
@@ -44,15 +44,14 @@ def main(argv=None) -> int:
     for name, (folder, moulds) in SCENES.items():
         scene = get_scene(name)
         for m in moulds or reference_moulds(name, a.seed, folder):
-            lower, upper = (np.asarray(reference_rung_from(scene, a.seed, m, b,
-                                                           (folder, HERE / "rung_1e5"))[0])
-                            for b in a.rungs)
-            n = min(len(lower), len(upper))
+            lower, upper, _, _ = paired_rungs(scene, a.seed, m, *a.rungs,
+                                              (folder, HERE / "rung_1e5"))
+            lower, upper, n = np.asarray(lower), np.asarray(upper), len(lower)
             if n < 2:
                 continue
             same = [rms(lower[k], upper[k]) for k in range(n)]
             other = [rms(lower[k], upper[j]) for k in range(n) for j in range(n) if j != k]
-            pair = (lower[None, :n], upper[None, :n])
+            pair = (lower[None], upper[None])
             rows.append({
                 "scene": name, "mould": m, "pairs": n,
                 "same_seed_rms": float(np.mean(same)), "other_seed_rms": float(np.mean(other)),

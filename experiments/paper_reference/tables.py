@@ -28,8 +28,8 @@ import pandas as pd
 from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
-from condor.studies.paper_reference import (budget_tag, pack_mould, reference_rung_from,
-                                             run_provenance)
+from condor.studies.paper_reference import (budget_tag, pack_mould, paired_rungs,
+                                             reference_rung_from, run_provenance)
 
 HERE = Path(__file__).resolve().parent
 RUNGS_MOVED = HERE / "rung_1e5"  # the paper scene's 1e5 runs of moulds whose 1e6 rung is done
@@ -66,20 +66,24 @@ def main(argv=None) -> int:
             if out is not None:
                 print(f"packed {out} ({out.stat().st_size / 1024:.0f} KiB)")
     folders = (a.reference_folder, RUNGS_MOVED)  # None: the shipped product
-    data = {b: [reference_rung_from(scene, a.seed, m, b, folders) for m in a.moulds]
-            for b in rungs}
     for lower, upper in zip(rungs, rungs[1:]):
-        keep = [i for i in range(len(a.moulds))
-                if len(data[lower][i][0]) >= 2 and len(data[upper][i][0]) >= 2]
+        if a.unpaired:  # every run of each rung, as the tables before 2026-12-07
+            per = []
+            for m in a.moulds:
+                (lf, le), (uf, ue) = (reference_rung_from(scene, a.seed, m, b, folders)
+                                      for b in (lower, upper))
+                per.append((lf, uf, le, ue))
+        else:  # the runs both rungs hold, run k against run k
+            per = [paired_rungs(scene, a.seed, m, lower, upper, folders) for m in a.moulds]
+        keep = [i for i, p in enumerate(per) if len(p[0]) >= 2 and len(p[1]) >= 2]
         if not keep:
             print(f"anneal {budget_tag(lower)} / {budget_tag(upper)}: no mould has 2 runs of both")
             continue
         row = fidelity_row(f"anneal {budget_tag(lower)}", scene.name,
                            f"anneal {budget_tag(upper)}",
-                           pad_replicas([data[lower][i][0] for i in keep]),
-                           pad_replicas([data[upper][i][0] for i in keep]),
-                           energy=pad_replicas([data[lower][i][1] for i in keep]),
-                           ref_energy=pad_replicas([data[upper][i][1] for i in keep]),
+                           *(pad_replicas([per[i][j] for i in keep]) for j in (0, 1)),
+                           energy=pad_replicas([per[i][2] for i in keep]),
+                           ref_energy=pad_replicas([per[i][3] for i in keep]),
                            paired=not a.unpaired)
         row["moulds"] = " ".join(str(a.moulds[i]) for i in keep)
         row["paired"] = not a.unpaired

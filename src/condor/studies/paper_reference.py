@@ -214,7 +214,7 @@ def load_reference(scene_name: str, dataset_seed: int, mould_id: int, budget: fl
                 positions=data[f"{key}_pos"].astype(np.float64) * POS_QUANTUM,
                 orientations=ori / np.linalg.norm(ori, axis=1, keepdims=True),
                 tension=data[f"{key}_tension"].astype(np.float64), fixed=data["fixed"]))
-    return out
+    return sorted(out, key=lambda run: run.run)
 
 
 def reference_rung(scene: Scene, dataset_seed: int, mould_id: int, budget: float, folder=None):
@@ -233,6 +233,27 @@ def reference_rung_from(scene: Scene, dataset_seed: int, mould_id: int, budget: 
     runs of it (a rung moved out of the product lies in a study's folder), else the first's."""
     found = [reference_rung(scene, dataset_seed, mould_id, budget, f) for f in folders]
     return next((r for r in found if len(r[0]) >= 2), found[0])
+
+
+def paired_rungs(scene: Scene, dataset_seed: int, mould_id: int, lower: float, upper: float,
+                 folders):
+    """Two rungs of a mould, each from the first of `folders` (None: the product) holding at
+    least 2 runs of it, kept to the runs both hold, in run order: (lower's fields, upper's
+    fields, lower's energies, upper's energies), lists of equal length whose k-th entries share
+    their seed (`reference_seed` does not depend on the budget; estimators.paired_distance)."""
+    def runs(budget):
+        found = []
+        for folder in folders:
+            try:
+                found.append(load_reference(scene.name, dataset_seed, mould_id, budget, folder))
+            except FileNotFoundError:
+                found.append([])
+        return {r.run: r for r in next((f for f in found if len(f) >= 2), found[0])}
+
+    low, high = runs(lower), runs(upper)
+    common = sorted(set(low) & set(high))
+    return ([low[k].fields(scene) for k in common], [high[k].fields(scene) for k in common],
+            [low[k].energy_per_cell for k in common], [high[k].energy_per_cell for k in common])
 
 
 def reference_moulds(scene_name: str, dataset_seed: int, folder=None) -> list[int]:
