@@ -129,24 +129,20 @@ def main(argv=None) -> int:
     rows = []
     ensembles = {f"anneal {budget_tag(b)}": (f, e, None) for b, (f, e) in refs.items()}
     for name, solver in METHODS.items():
-        fields, energy, evals = [], [], []
+        per_mould = []  # per mould, its runs' (fields, energy, evaluations)
         for family, i in moulds:
             mould, key = lab_mould(a.seed, i, family, scene), key_of(family, i)
-            fm, em, vm = [], [], []
-            for k in range(a.seeds):
-                def run(mould=mould, key=key, k=k):
-                    r = simulate(mould.polygon, mould.tethers, scene.depth, solver,
-                                 seed=replica_seed(a.seed, key, k))
-                    return scene_fields(r, scene), r
 
-                f, e, v = cached_run(folder / name / f"{family}{i}_r{k}.npz", run)
-                fm.append(f)
-                em.append(e)
-                vm.append(v)
-            fields.append(fm)
-            energy.append(em)
-            evals.append(vm)
-        ensembles[name] = (pad_replicas(fields), pad_replicas(energy), pad_replicas(evals))
+            def run(k, mould=mould, key=key):
+                r = simulate(mould.polygon, mould.tethers, scene.depth, solver,
+                             seed=replica_seed(a.seed, key, k))
+                return scene_fields(r, scene), r
+
+            per_mould.append([cached_run(folder / name / f"{family}{i}_r{k}.npz",
+                                         lambda k=k, run=run: run(k))
+                              for k in range(a.seeds)])
+        ensembles[name] = tuple(pad_replicas([[r[j] for r in runs] for runs in per_mould])
+                                for j in range(3))
     names = list(ensembles)
     for reference in (n for n in names if n.startswith("anneal")):
         rf, re, _ = ensembles[reference]
