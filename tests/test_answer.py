@@ -260,3 +260,22 @@ def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
     assert (table["factor_lo"] <= table["factor"]).all() and \
         (table["factor"] <= table["factor_hi"]).all()
     assert table["weights_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()
+
+
+def test_the_printed_direction_says_when_the_alignment_is_within_its_spread():
+    """A mould whose cells point every way (alignment 0.002 +- 0.029) has a direction that is
+    noise: the printed summary says so beside it; an aligned mould's direction stands alone."""
+    from condor.surrogate.answer import NO_DIRECTION, direction_is_clear, format_mould_summary
+
+    def table(alignment, spread):
+        return pd.DataFrame([("alignment", alignment, spread, "0..1"),
+                             ("direction", 55.0, 111.0, "deg from x"),
+                             ("mean_tension", 0.01, 0.001, "T units")],
+                            columns=["statistic", "value", "spread", "unit"])
+
+    aligned, isotropic = table(0.6, 0.04), table(0.002, 0.029)
+    assert direction_is_clear(aligned) and not direction_is_clear(isotropic)
+    assert direction_is_clear(table(0.002, np.nan))  # no spread to judge by
+    lines = {line.split()[0]: line for line in format_mould_summary(isotropic).splitlines()}
+    assert NO_DIRECTION in lines["direction"] and NO_DIRECTION not in lines["alignment"]
+    assert NO_DIRECTION not in format_mould_summary(aligned)

@@ -55,4 +55,10 @@ def test_the_page_has_plain_names_and_units(tmp_path):
     with Image.open(path) as image:
         assert image.size[0] > 1000
     line = page.plain_statistics(summary)
-    assert "alignment 0.5 ± 0.1 (0: random, 1: all one way)" in line and "mm²" in line
+    assert "alignment 0.5 ± 0.1 (0: random, 1: all one way) at 0 ± 5° from x" in line
+    assert "mm²" in line
+    # a mould whose cells point every way: its direction is noise, and the page says so
+    isotropic = summary.assign(value=[0.002, 55.0, 0.01, 0.02],
+                               spread=[0.029, 111.0, 0.001, 0.001])
+    line = page.plain_statistics(isotropic)
+    assert "in no clear direction" in line and "55" not in line

@@ -12,6 +12,7 @@ import numpy as np
 
 from condor.data.fields import FIELD_NAMES
 from condor.plots import pyplot, save
+from condor.surrogate.answer import direction_is_clear
 
 
 # The page's panels (prediction_panels): plain names; a ratio (per cell, per orientation) is
@@ -191,8 +192,9 @@ def plain_statistics(summary) -> str:
 
     parts = []
     if value("alignment"):
-        parts.append(f"alignment {value('alignment')} (0: random, 1: all one way) at "
-                     f"{value('direction', 2)}° from x")
+        parts.append(f"alignment {value('alignment')} (0: random, 1: all one way) " +
+                     (f"at {value('direction', 2)}° from x" if direction_is_clear(summary)
+                      else "in no clear direction"))
     if value("mean_tension"):
         parts.append(f"mean_tension {value('mean_tension')}")
     area = value("tissue_area_mm2") or value("tissue_area")

@@ -163,13 +163,30 @@ def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "") 
     return factors, note, warning
 
 
+NO_DIRECTION = "no clear direction: the alignment lies within its spread of 0"
+
+
+def direction_is_clear(table: pd.DataFrame) -> bool:
+    """False where the mould's alignment is no larger than its spread (a mould whose cells
+    point every way, such as a 4-fold symmetric one): its direction is then noise, whatever
+    the number says. True without an alignment spread to judge by."""
+    rows = table.set_index("statistic")
+    if "alignment" not in rows.index:
+        return True
+    value, spread = rows.loc["alignment", ["value", "spread"]]
+    return not (np.isfinite(value) and np.isfinite(spread) and value <= spread)
+
+
 def format_mould_summary(table: pd.DataFrame) -> str:
-    """The summary as lines "  alignment      0.62 +- 0.04  (0..1)"."""
+    """The summary as lines "  alignment      0.62 +- 0.04  (0..1)"; the direction says when
+    it is noise (direction_is_clear)."""
     lines = []
+    clear = direction_is_clear(table)
     for row in table.itertuples():
         spread = "" if not np.isfinite(row.spread) else f" +- {row.spread:.3g}"
         value = f"{row.value:.4g}" if np.isfinite(row.value) else "n/a"
-        lines.append(f"  {row.statistic:<16} {value}{spread}  ({row.unit})")
+        note = f"; {NO_DIRECTION}" if row.statistic == "direction" and not clear else ""
+        lines.append(f"  {row.statistic:<16} {value}{spread}  ({row.unit}{note})")
     return "\n".join(lines)
 
 
