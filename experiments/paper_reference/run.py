@@ -58,6 +58,9 @@ def main(argv=None) -> int:
     ap.add_argument("--moulds", type=int, nargs="+", required=True)
     ap.add_argument("--rungs", type=float, nargs="+", required=True, help="moves per cell")
     ap.add_argument("--runs", type=int, default=3, help="seeds per rung")
+    ap.add_argument("--from-run", type=int, default=0,
+                    help="run only runs K.. of each rung (their first runs done elsewhere, "
+                         "such as a rung moved out of the product into rung_1e5/)")
     ap.add_argument("--order", choices=("run", "mould"), default="run",
                     help="within a rung: run k of every mould first, or every run of a mould")
     ap.add_argument("--cache", type=Path, default=CACHE)
@@ -74,8 +77,9 @@ def main(argv=None) -> int:
         print(f"{time.strftime('%H:%M:%S')} [{os.getpid()}] {line}", flush=True)
 
     for budget in a.rungs:
-        pairs = ([(k, m) for k in range(a.runs) for m in a.moulds] if a.order == "run"
-                 else [(k, m) for m in a.moulds for k in range(a.runs)])
+        runs = range(a.from_run, a.runs)
+        pairs = ([(k, m) for k in runs for m in a.moulds] if a.order == "run"
+                 else [(k, m) for m in a.moulds for k in runs])
         for k, mould in pairs:
             path = run_path(a.cache, scene, a.seed, mould, budget, k)
             path.parent.mkdir(parents=True, exist_ok=True)
