@@ -1,0 +1,110 @@
+"""A mould's rungs with runs beyond the shipped three: the ladder in pairs and the sampler.
+
+The product ships 3 runs a rung (src/condor/paper_reference/, rung_1e5/: the file-size rule).
+Runs 3, 4, ... of a mould (`run.py --runs 5 --from-run 3`) stay in the run cache, whole
+(SimResult files, git-ignored); this study reads the shipped runs and the cache's together,
+by run number, and scores for each mould:
+
+- the ladder, lower rung against upper, run k against run k (`estimators.paired_distance`);
+- the dataset's sampler (experiments/fast_sampler's cache of `--method`, its seeds) against
+  the upper rung's runs (`fidelity_row`), and against its first 3 alone, as before.
+
+    python experiments/paper_reference/more_runs.py --scene paper --moulds 94 \\
+        --out experiments/paper_reference/more_runs_paper.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+import condor.measures.estimators as est
+from condor.files import write_text
+from condor.model.scenes import get_scene
+from condor.model.simulate import SimResult
+from condor.studies.fidelity import fidelity_row
+from condor.studies.paper_reference import budget_tag, load_reference, run_path, scene_fields
+
+HERE = Path(__file__).resolve().parent
+FAST_SAMPLER_CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
+RECIPE = "relax:0.03:0.001:80:10:200+20,40:1e-3"  # the paper scene's (docs/model.md)
+
+
+def rung_runs(scene, seed: int, mould: int, budget: float, cache: Path) -> dict:
+    """run number -> (normalised fields, E/cell): the shipped runs (the product, else
+    rung_1e5/) and the cache's finished runs of any other number."""
+    runs = {}
+    for folder in (None, HERE / "rung_1e5"):
+        try:
+            shipped = load_reference(scene.name, seed, mould, budget, folder)
+        except FileNotFoundError:
+            continue
+        for r in shipped:
+            runs.setdefault(r.run, (r.fields(scene), r.energy_per_cell))
+    k = 0
+    while k < 100:
+        path = run_path(cache, scene, seed, mould, budget, k)
+        if k not in runs and path.exists():
+            r = SimResult.load(path)
+            if r.status == "ok":
+                runs[k] = (scene_fields(r, scene), r.energy_per_cell)
+        k += 1
+    return dict(sorted(runs.items()))
+
+
+def sampler_runs(scene, seed: int, mould: int, method: str, seeds: int) -> list:
+    folder = FAST_SAMPLER_CACHE / f"{scene.name}_s{seed}" / method.replace(":", "_")
+    out = []
+    for k in range(seeds):
+        with np.load(folder / f"m{mould}_r{k}.npz") as d:
+            out.append((d["fields"].astype(np.float64), float(d["energy"])))
+    return out
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scene", default="paper")
+    ap.add_argument("--seed", type=int, default=2026)
+    ap.add_argument("--moulds", type=int, nargs="+", required=True)
+    ap.add_argument("--rungs", type=float, nargs=2, default=[1e5, 1e6])
+    ap.add_argument("--method", default=RECIPE)
+    ap.add_argument("--seeds", type=int, default=32, help="the sampler's cached runs a mould")
+    ap.add_argument("--cache", type=Path, default=HERE / "cache")
+    ap.add_argument("--out", type=Path)
+    a = ap.parse_args(argv)
+    scene = get_scene(a.scene)
+    lower_tag, upper_tag = (f"anneal {budget_tag(b)}" for b in a.rungs)
+    rows = []
+    for m in a.moulds:
+        low, high = (rung_runs(scene, a.seed, m, b, a.cache) for b in a.rungs)
+        pairs = sorted(set(low) & set(high))
+        row = fidelity_row(lower_tag, scene.name, upper_tag,
+                           np.stack([low[k][0] for k in pairs])[None],
+                           np.stack([high[k][0] for k in pairs])[None],
+                           energy=np.array([[low[k][1] for k in pairs]]),
+                           ref_energy=np.array([[high[k][1] for k in pairs]]), paired=True)
+        rows.append({**row, "mould": m, "runs": " ".join(map(str, pairs))})
+        sampler = sampler_runs(scene, a.seed, m, a.method, a.seeds)
+        fields = np.stack([f for f, _ in sampler])[None]
+        energy = np.array([[e for _, e in sampler]])
+        for runs in (sorted(high), sorted(high)[:3]):
+            row = fidelity_row(a.method, scene.name, upper_tag, fields,
+                               np.stack([high[k][0] for k in runs])[None], energy=energy,
+                               ref_energy=np.array([[high[k][1] for k in runs]]))
+            rows.append({**row, "mould": m, "runs": " ".join(map(str, runs))})
+    table = pd.DataFrame(rows)
+    for r in table.itertuples():
+        print(f"mould {r.mould}: {r.method} against {r.reference} runs {r.runs}: "
+              f"{r.distance:.3f} / scatter {r.replica_noise:.3f} = "
+              f"{r.distance / r.replica_noise:.2f}x; E/cell {r.energy_difference_pct:+.2f}%")
+    if a.out:
+        write_text(a.out, table.to_csv(index=False, float_format="%.5g"))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
