@@ -8,7 +8,8 @@ by run number, and scores for each mould:
 - the ladder, lower rung against upper, run k against run k (`estimators.paired_distance`);
 - the dataset's sampler (experiments/fast_sampler's cache of `--method`, its seeds) against
   each rung's runs (`fidelity_row`), and against its first 3 alone, as before;
-- each distance without the tilt fields SxSz, SySz (odd under z -> -z), and their share.
+- each distance without the tilt fields SxSz, SySz (odd under z -> -z), and their share;
+- the squared distance with its leave-one-run-out standard error over the reference's runs.
 
     python experiments/paper_reference/more_runs.py --scene paper --moulds 94 \\
         --out experiments/paper_reference/more_runs_paper.csv
@@ -81,6 +82,22 @@ def field_split(a, b, paired: bool) -> dict:
             "odd_share": float(odd / total) if total > 0 else float("nan")}
 
 
+def jackknife(a, b, paired: bool) -> dict:
+    """The squared distance (`distance_sq`, the mean over fields as fidelity_row's distance is
+    its root) and its leave-one-out standard error over the reference's runs (`distance_sq_se`;
+    paired: both runs of a pair left out together): how far one mould's figure can be trusted
+    with so few runs."""
+    estimate = (est.paired_distance if paired else est.ensemble_distance)
+    full = float(estimate(a, b).corrected[0])
+    n = b.shape[1]
+    if n < 3:
+        return {"distance_sq": full, "distance_sq_se": float("nan")}
+    out = np.array([float(estimate(np.delete(a, i, 1) if paired else a, np.delete(b, i, 1))
+                          .corrected[0]) for i in range(n)])
+    return {"distance_sq": full,
+            "distance_sq_se": float(np.sqrt((n - 1) / n * ((out - out.mean()) ** 2).sum()))}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--scene", default="paper")
@@ -103,7 +120,8 @@ def main(argv=None) -> int:
         row = fidelity_row(lower_tag, scene.name, upper_tag, lower, upper,
                            energy=np.array([[low[k][1] for k in pairs]]),
                            ref_energy=np.array([[high[k][1] for k in pairs]]), paired=True)
-        rows.append({**row, **field_split(lower, upper, True), "mould": m,
+        rows.append({**row, **field_split(lower, upper, True), **jackknife(lower, upper, True),
+                     "mould": m,
                      "runs": " ".join(map(str, pairs))})
         sampler = sampler_runs(scene, a.seed, m, a.method, a.seeds)
         fields = np.stack([f for f, _ in sampler])[None]
@@ -113,14 +131,17 @@ def main(argv=None) -> int:
                 reference = np.stack([rung[k][0] for k in runs])[None]
                 row = fidelity_row(a.method, scene.name, tag, fields, reference, energy=energy,
                                    ref_energy=np.array([[rung[k][1] for k in runs]]))
-                rows.append({**row, **field_split(fields, reference, False), "mould": m,
+                rows.append({**row, **field_split(fields, reference, False),
+                             **jackknife(fields, reference, False), "mould": m,
                              "runs": " ".join(map(str, runs))})
     table = pd.DataFrame(rows)
     for r in table.itertuples():
         print(f"mould {r.mould}: {r.method} against {r.reference} runs {r.runs}: "
               f"{r.distance:.3f} / scatter {r.replica_noise:.3f} = "
               f"{r.distance / r.replica_noise:.2f}x (without the tilt fields {r.distance_even:.3f}"
-              f"; their share {r.odd_share:.0%}); E/cell {r.energy_difference_pct:+.2f}%")
+              f"; their share {r.odd_share:.0%}); squared {r.distance_sq:+.4f} +- "
+              f"{r.distance_sq_se:.4f} against the scatter's {r.replica_noise ** 2:.4f}; "
+              f"E/cell {r.energy_difference_pct:+.2f}%")
     if a.out:
         write_text(a.out, table.to_csv(index=False, float_format="%.5g"))
     return 0
