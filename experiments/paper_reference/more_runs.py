@@ -1,9 +1,9 @@
 """A mould's rungs with runs beyond the shipped three: the ladder in pairs and the sampler.
 
 The product ships 3 runs a rung (src/condor/paper_reference/, rung_1e5/: the file-size rule).
-Runs 3, 4, ... of a mould (`run.py --runs 5 --from-run 3`) stay in the run cache, whole
-(SimResult files, git-ignored); this study reads the shipped runs and the cache's together,
-by run number, and scores for each mould:
+Runs 3, 4, ... of a mould (`run.py --runs 5 --from-run 3`) are packed into `more_runs_1e5/` and
+`more_runs_1e6/` (pack_mould from the run cache); this study reads them, the shipped runs and
+any in the cache together, by run number, and scores for each mould:
 
 - the ladder, lower rung against upper, run k against run k (`estimators.paired_distance`);
 - the dataset's sampler (experiments/fast_sampler's cache of `--method`, its seeds) against
@@ -35,13 +35,16 @@ from condor.studies.paper_reference import budget_tag, load_reference, run_path,
 HERE = Path(__file__).resolve().parent
 FAST_SAMPLER_CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
 RECIPE = "relax:0.03:0.001:80:10:200+20,40:1e-3"  # the paper scene's (docs/model.md)
+# runs beyond the shipped three, packed like the product (condor.studies.paper_reference
+# .pack_mould), one folder a rung so that each file keeps within the file-size rule
+MORE_RUNS = (HERE / "more_runs_1e5", HERE / "more_runs_1e6")
 
 
 def rung_runs(scene, seed: int, mould: int, budget: float, cache: Path) -> dict:
     """run number -> (normalised fields, E/cell): the shipped runs (the product, else
-    rung_1e5/) and the cache's finished runs of any other number."""
+    rung_1e5/), those of MORE_RUNS, and the cache's finished runs of any other number."""
     runs = {}
-    for folder in (None, HERE / "rung_1e5"):
+    for folder in (None, HERE / "rung_1e5", *MORE_RUNS):
         try:
             shipped = load_reference(scene.name, seed, mould, budget, folder)
         except FileNotFoundError:
