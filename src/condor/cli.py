@@ -503,7 +503,8 @@ def _parser_predict(sub) -> None:
                    help="simulate the mould N times with the dataset's solver and score the "
                         "prediction against them; the answer written is then the prediction "
                         "and their mean weighed by their measured errors, the surrogate's own "
-                        "kept beside it (N >= 2; 0: no check, the surrogate's answer). Default auto: 4 simulations where the mould holds at most "
+                        "kept beside it (N >= 2; 0: no check, the surrogate's answer). "
+                        "Default auto: 4 simulations where the mould holds at most "
                         "4,000 cells (the default and tiny scenes: seconds in all), none at the "
                         "paper scene")
     _user_mould_args(p)
