@@ -25,6 +25,23 @@ def test_every_shipped_finding_has_its_provenance_and_its_experiment_folder_exis
         assert (REPO / source).is_file(), source
 
 
+def test_record_finding_writes_its_table_and_entry_and_refuses_one_without_provenance(tmp_path):
+    import pandas as pd
+
+    path = tmp_path / "findings.json"
+    path.write_text(json.dumps({"other": {"question": "q"}}))
+    entry = {"question": "Q?", "table": "t.csv", "experiment": "experiments/x", "source": "s",
+             "commit": "abc1234"}
+    findings.record_finding("new", entry, pd.DataFrame({"a": [1.0 / 3]}), path=path)
+    written = json.loads(path.read_text())
+    assert written["new"] == entry and written["other"] == {"question": "q"}
+    assert (tmp_path / "t.csv").read_text() == "a\n0.333333\n"
+    for bad in ({**entry, "commit": ""}, {k: v for k, v in entry.items() if k != "table"}):
+        with pytest.raises(ValueError, match="new"):
+            findings.record_finding("new2", bad, pd.DataFrame({"a": [1]}), path=path)
+    assert "new2" not in json.loads(path.read_text())
+
+
 def test_a_findings_commit_is_in_the_history_when_the_repository_is_a_clone():
     done = subprocess.run(["git", "-C", str(REPO), "rev-parse", "--git-dir"], capture_output=True)
     if done.returncode != 0:

@@ -21,11 +21,10 @@ from pathlib import Path
 
 import pandas as pd
 
-from condor.findings import GENERALISATION_COLUMNS, NOVELTY_COLUMNS
+from condor.findings import GENERALISATION_COLUMNS, NOVELTY_COLUMNS, record_finding
 
 HERE = Path(__file__).resolve().parent
 REPO = HERE.parents[1]
-FINDINGS = REPO / "src" / "condor" / "findings"
 FRESH = "fresh seed"
 
 
@@ -56,18 +55,14 @@ def main(argv=None) -> int:
     table = pd.read_csv(tables / "generalisation.csv")[list(GENERALISATION_COLUMNS)]
     (REPO / "docs" / "data").mkdir(exist_ok=True)
     table.to_csv(REPO / "docs" / "data" / "generalisation.csv", index=False)
-    held_out_rows(table).to_csv(FINDINGS / "generalisation.csv", index=False)
     calibration = pd.read_csv(tables / "novelty_calibration.csv")[list(NOVELTY_COLUMNS)]
-    calibration.to_csv(FINDINGS / "novelty.csv", index=False)
     choice = json.loads((tables / "novelty_choice.json").read_text())
     n_models = table["held_out"].nunique()
     extra = (f" --extra {a.extra_name} --extra-share {a.extra_share:g}" if a.extra_share else "")
     extra += f" --set {' '.join(a.set)}" if a.set else ""
     composite = (f" ({round(a.extra_share * a.n_train)} of them composite)" if a.extra_share
                  else "")
-    path = FINDINGS / "findings.json"
-    findings = json.loads(path.read_text())
-    findings["generalisation"] = {
+    record_finding("generalisation", {
         "question": "How close does the default recipe come to the expected fields on lab "
                     "families it never trained on (each kind of two kindred families held out "
                     "of training in turn), and on the paper's moulds and a fresh generator seed "
@@ -80,8 +75,8 @@ def main(argv=None) -> int:
                   "moulds a family x 4 replicas; error against the expected fields with the "
                   "noise removed, 95% intervals over moulds)",
         "commit": a.commit,
-    }
-    findings["novelty"] = {
+    }, held_out_rows(table), float_format=None)
+    record_finding("novelty", {
         "question": ("How new is a mould to the surrogate, and how far off are its "
                      "predictions on moulds that new (the error over one simulation's scatter, "
                      "by novelty)?" if choice["score"] == "feature_distance" else
@@ -101,8 +96,7 @@ def main(argv=None) -> int:
         "commit": a.commit,
         "values": {k: choice[k] for k in ("score", "threshold", "caught", "false_alarms",
                                           "n_bad", "n_good")},
-    }
-    path.write_text(json.dumps(findings, indent=1) + "\n")
+    }, calibration, float_format=None)
     print(f"wrote docs/data/generalisation.csv, findings generalisation and novelty "
           f"({choice['score']} above {choice['threshold']:.3g})")
     return 0

@@ -28,6 +28,7 @@ import zarr
 import condor.stages.check as check_stage
 import condor.stages.predict as predict_stage
 from condor.files import write_text
+from condor.findings import record_finding
 from condor.model.scenes import get_scene
 from condor.stages.predict import predict_mould
 
@@ -135,20 +136,13 @@ def main(argv=None) -> None:
         ship(table[table["checkpoint"] == a.ship], a.commit, a.variants, a.check)
 
 
-FINDINGS = Path(__file__).resolve().parents[2] / "src" / "condor" / "findings"
-
-
 def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
     """The shipped checkpoint's rows as the `never_drawn` finding (condor.findings)."""
     if rows.empty:
         raise SystemExit("--ship names no checkpoint of --checkpoint")
     columns = ["kind", "variant", "replicas", "error", "ceiling", "ratio", "tension_bias",
                "tightness"]
-    write_text(FINDINGS / "never_drawn.csv",
-               rows[columns].to_csv(index=False, float_format="%.6g"))
-    path = FINDINGS / "findings.json"
-    findings = json.loads(path.read_text())
-    findings["never_drawn"] = {
+    record_finding("never_drawn", {
         "question": "How close does the default run's checkpoint come, and how far off is its "
                     "mean tension, on kinds of mould that no training source draws?",
         "table": "never_drawn.csv",
@@ -157,8 +151,7 @@ def ship(rows: pd.DataFrame, commit: str, variants: int, n_check: int) -> None:
                   f"{rows['kind'].nunique()} kinds x {variants} moulds (shapes.py), each "
                   f"checked by {n_check} simulations as `condor predict --check` checks it, "
                   "with the default run's checkpoint",
-        "commit": commit}
-    write_text(path, json.dumps(findings, indent=1) + "\n")
+        "commit": commit}, rows[columns])
 
 
 if __name__ == "__main__":

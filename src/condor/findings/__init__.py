@@ -114,6 +114,25 @@ def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:
     return findings
 
 
+def record_finding(key: str, entry: dict, table: pd.DataFrame | None = None,
+                   float_format: str | None = "%.6g", path=HERE / "findings.json") -> None:
+    """Ship one finding, as a study's script does: `table` (if given) written to entry["table"]
+    beside `path`, then `entry` set under `key` in `path`, each file whole or not at all.
+    Raises ValueError, writing nothing, for an entry that lacks its provenance."""
+    from condor.files import write_text
+
+    missing = [k for k in ("question", "experiment", "source", "commit") if not entry.get(k)]
+    if missing or (table is not None and not entry.get("table")):
+        raise ValueError(f"finding {key!r} lacks {missing or ['table']}")
+    path = Path(path)
+    if table is not None:
+        write_text(path.parent / entry["table"], table.to_csv(index=False,
+                                                              float_format=float_format))
+    findings = json.loads(path.read_text())
+    findings[key] = entry
+    write_text(path, json.dumps(findings, indent=1) + "\n")
+
+
 def more_moulds_sentence(finding: Finding) -> str:
     """What the training-set study found for the orientation statistics, from its table: the
     orientation r of the default recipe, of more training moulds at the same epochs, and of
