@@ -118,6 +118,9 @@ def main(argv=None) -> int:
     ap.add_argument("--moved-folder", type=Path, default=RUNGS_MOVED,
                     help="where a rung moved out of the product lies (read for a mould whose "
                          "product file lacks it)")
+    ap.add_argument("--z-symmetric", action="store_true",
+                    help="score the ensembles symmetrised under z -> depth - z, the tilt "
+                         "fields' noise left out (studies.fidelity, docs/model.md)")
     ap.add_argument("--min-moulds", type=int, default=2,
                     help="score against a rung only when this many moulds have 2 runs of it "
                          "(1: a single mould's figures, without an interval over moulds)")
@@ -156,7 +159,8 @@ def main(argv=None) -> int:
                                pad_replicas([rf[i] for i in keep]),
                                evaluations=pad_replicas([evals[i] for i in keep]),
                                energy=pad_replicas([energy[i] for i in keep]),
-                               ref_energy=pad_replicas([re[i] for i in keep]))
+                               ref_energy=pad_replicas([re[i] for i in keep]),
+                               z_symmetric=a.z_symmetric)
             rows.append(row)
             print(" ".join(f"{k}={v:.4g}" if isinstance(v, float) else f"{k}={v}"
                            for k, v in row.items()), flush=True)

@@ -52,6 +52,9 @@ def main(argv=None) -> int:
                     help="score the rungs as independent ensembles (the tables before "
                          "2026-12-07); by default run k of both is a pair, since it shares its "
                          "seed (estimators.paired_distance)")
+    ap.add_argument("--z-symmetric", action="store_true",
+                    help="score the rungs symmetrised under z -> depth - z, the tilt fields' "
+                         "noise left out (studies.fidelity, docs/model.md)")
     ap.add_argument("--reference-folder", type=Path, default=None,
                     help="read the runs from this folder (run.py --product) instead of the "
                          "shipped product")
@@ -84,7 +87,7 @@ def main(argv=None) -> int:
                            *(pad_replicas([per[i][j] for i in keep]) for j in (0, 1)),
                            energy=pad_replicas([per[i][2] for i in keep]),
                            ref_energy=pad_replicas([per[i][3] for i in keep]),
-                           paired=not a.unpaired)
+                           paired=not a.unpaired, z_symmetric=a.z_symmetric)
         row["moulds"] = " ".join(str(a.moulds[i]) for i in keep)
         row["paired"] = not a.unpaired
         rows.append(row)

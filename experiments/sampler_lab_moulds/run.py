@@ -90,6 +90,9 @@ def main(argv=None) -> int:
     ap.add_argument("--cache", type=Path, default=CACHE)
     ap.add_argument("--only-references", action="store_true",
                     help="run (or resume) the reference anneals and stop")
+    ap.add_argument("--z-symmetric", action="store_true",
+                    help="score over the six fields even under z -> depth - z, the tilt fields' "
+                         "noise left out (condor.studies.fidelity)")
     ap.add_argument("--out", type=Path, help="the table (CSV)")
     a = ap.parse_args(argv)
     scene = get_scene(a.scene)
@@ -153,7 +156,8 @@ def main(argv=None) -> int:
                 row = fidelity_row(name, scene.name, reference, f[pick], rf[pick],
                                    evaluations=None if v is None else v[pick],
                                    energy=e[pick], ref_energy=re[pick],
-                                   paired=v is None)  # two rungs: run k shares its seed
+                                   paired=v is None,  # two rungs: run k shares its seed
+                                   z_symmetric=a.z_symmetric)
                 row["moulds"] = " ".join(a.moulds) if m is None else f"{family}:{i}"
                 rows.append(row)
                 log(f"{name} against {reference} on {row['moulds']}: distance "

@@ -12,6 +12,19 @@ interval: a mould's energy scatters by a few % from seed to seed, so a handful o
 resolves a fraction of a percent only over many moulds).
 
 `fidelity_row` is one row of `fidelity.csv` (FIDELITY_COLUMNS first).
+
+The tilt fields SxSz and SySz (s_x s_z, s_y s_z) are odd under the slab's reflection z ->
+depth - z. The energy is even under it (bond lengths and squared cosines of bonds with
+orientations), and so are the floor and lid; the posts are not quite: their cells stay fixed
+at the lattice's layers (z = 0 .. 3.54 in a slab of depth 4), and a tethered mould's cells keep
+to the floor. So a tilt field's expectation is near 0, not exactly 0, while one run's tilt is
+large and of either sign, and most of one simulation's scatter on many paper-scene moulds.
+With `z_symmetric` the distance is that of the ensembles symmetrised under the reflection,
+each run averaged with its reflected twin (`z_symmetrised`: the tilt fields 0, the others
+unchanged): the distance over the six even fields (still divided by all 8), which equals the
+whole where both ensembles' tilt expectations agree, without the tilt fields' noise. It says
+nothing of the tilt: report it beside the whole distance, never alone. The replica noise, the
+yardstick, stays one simulation's, tilt included.
 """
 
 from __future__ import annotations
@@ -26,6 +39,15 @@ from condor.data.fields import FIELD_NAMES
 FIDELITY_COLUMNS = ("method", "scene", "reference", "n_moulds", "n_seeds", "distance",
                     "distance_lo", "distance_hi", "replica_noise", "evaluations_per_mould")
 _P, _ORIENT = FIELD_NAMES.index("P"), [FIELD_NAMES.index(f) for f in ("Sx2", "Sy2", "Sz2")]
+TILT = tuple(FIELD_NAMES.index(f) for f in ("SxSz", "SySz"))  # odd under z -> depth - z
+
+
+def z_symmetrised(fields) -> np.ndarray:
+    """Fields (..., 8, H, W), each averaged with its twin under the slab's reflection: a copy
+    with the tilt fields (TILT) 0, NaN where the run is missing."""
+    out = np.array(fields, dtype=np.float64)
+    out[..., TILT, :, :] *= 0.0  # keeps NaN
+    return out
 
 
 def mean_orientation(fields) -> np.ndarray:
@@ -36,16 +58,22 @@ def mean_orientation(fields) -> np.ndarray:
 
 
 def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
-                 evaluations=None, energy=None, ref_energy=None, paired: bool = False) -> dict:
+                 evaluations=None, energy=None, ref_energy=None, paired: bool = False,
+                 z_symmetric: bool = False) -> dict:
     """One row: `fields` (M, R, 8, H, W) of the method against `ref_fields` (M, R', 8, H, W)
     of the reference, both normalised, the same moulds in the same order; `evaluations`
     (M, R) the method's cost in evaluation-equivalents; `energy`, `ref_energy` (M, R) and
     (M, R') energies per cell. NaN-padded replicas are allowed (estimators). `paired`: replica
     k of both shares its seed (two rungs of the paper reference), so the distance is
-    `estimators.paired_distance`'s, else `ensemble_distance`'s (independent ensembles)."""
+    `estimators.paired_distance`'s, else `ensemble_distance`'s (independent ensembles).
+    `z_symmetric`: the distance of the ensembles symmetrised under z -> depth - z, over the six
+    even fields (module docs), recorded in the row's `z_symmetric` (a column only such rows
+    hold)."""
     fields = np.asarray(fields, dtype=np.float64)
     ref_fields = np.asarray(ref_fields, dtype=np.float64)
-    d = (est.paired_distance if paired else est.ensemble_distance)(fields, ref_fields)
+    scored = ((z_symmetrised(fields), z_symmetrised(ref_fields)) if z_symmetric
+              else (fields, ref_fields))
+    d = (est.paired_distance if paired else est.ensemble_distance)(*scored)
     distance, lo, hi = est.bootstrap_interval(d.corrected)
     row = {"method": method, "scene": scene, "reference": reference,
            "n_moulds": int(fields.shape[0]),
@@ -66,6 +94,8 @@ def fidelity_row(method: str, scene: str, reference: str, fields, ref_fields,
                    energy_difference_pct_hi=e_hi,
                    energy_difference_pct_max=float(ratio[np.argmax(np.abs(ratio))]))
     row["converged"] = bool(row["distance_hi"] <= SAME_STATES * row["replica_noise"])
+    if z_symmetric:
+        row["z_symmetric"] = True
     return row
 
 
