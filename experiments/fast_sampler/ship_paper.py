@@ -39,6 +39,7 @@ def as_fidelity_rows(table: pd.DataFrame, reference: str, columns) -> pd.DataFra
     rows["recipe"] = rows["method"]
     rows["method"] = ["lbfgs" if m == QUENCH else "relaxed_anneal" for m in rows["recipe"]]
     rows["reference"] = reference
+    rows = rows.sort_values("method", ascending=False, kind="stable")  # the dataset's first
     return rows[[c for c in columns if c in rows.columns]]
 
 
