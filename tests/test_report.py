@@ -71,6 +71,10 @@ def test_table_matches_the_csv(tmp_path):
     assert len(rows) == 1 + 3  # header + rows
     cells = [re.findall(r"<td>(.*?)</td>", r) for r in rows[1:]]
     assert cells[0] == ["a", "1.23", "1"] and cells[1][1] == "" and cells[2][1] == "3e-07"
+    # a whole-number float past the digits (a count read back with NaN beside it) reads as a
+    # count; one within them, or not whole, keeps the digits
+    counts = kit.table(pd.DataFrame({"n": [4567.0, np.nan, 12.0, 4567.4]}), "cap", digits=3)
+    assert re.findall(r"<td>(.*?)</td>", counts) == ["4,567", "", "12", "4.57e+03"]
     shortened = kit.table(df, "cap", max_rows=2)
     assert len(re.findall(r"<tr>", shortened)) == 3 and "1 more rows" in shortened
     with pytest.raises(kit.ReportError, match="nope"):

@@ -96,6 +96,8 @@ def _format(value, digits: int) -> str:
     if isinstance(value, (float, np.floating)):
         if not np.isfinite(value):
             return "" if np.isnan(value) else str(value)
+        if float(value).is_integer() and abs(value) >= 10 ** digits:
+            return f"{int(value):,}"  # a count (cells, evaluations), not 4.57e+03
         return f"{value:.{digits}g}"
     return html.escape(str(value))
 
