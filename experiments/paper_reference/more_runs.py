@@ -25,11 +25,10 @@ import numpy as np
 import pandas as pd
 
 import condor.measures.estimators as est
-from condor.data.fields import FIELD_NAMES
 from condor.files import write_text
 from condor.model.scenes import get_scene
 from condor.model.simulate import SimResult
-from condor.studies.fidelity import fidelity_row
+from condor.studies.fidelity import TILT, fidelity_row
 from condor.studies.paper_reference import budget_tag, load_reference, run_path, scene_fields
 
 HERE = Path(__file__).resolve().parent
@@ -71,7 +70,6 @@ def sampler_runs(scene, seed: int, mould: int, method: str, seeds: int) -> list:
     return out
 
 
-ODD = [FIELD_NAMES.index(f) for f in ("SxSz", "SySz")]  # the tilt fields, odd under z -> -z
 
 
 def field_split(a, b, paired: bool) -> dict:
@@ -80,7 +78,7 @@ def field_split(a, b, paired: bool) -> dict:
     `odd_share` is the tilt fields' share of the whole (NaN where the whole is not above 0)."""
     per_field = (est.paired_distance if paired else est.ensemble_distance)(
         a, b, per_field=True).corrected[0]
-    total, odd = per_field.sum(), per_field[ODD].sum()
+    total, odd = per_field.sum(), per_field[list(TILT)].sum()
     return {"distance_even": float(np.sqrt(max(total - odd, 0.0) / len(per_field))),
             "odd_share": float(odd / total) if total > 0 else float("nan")}
 

@@ -25,6 +25,7 @@ from pathlib import Path
 
 import pandas as pd
 
+from condor.files import write_text
 from condor.measures.estimators import pad_replicas
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import fidelity_row
@@ -94,7 +95,7 @@ def main(argv=None) -> int:
         print(row)
     if rows:
         out = a.out or HERE / f"ladder_{scene.name}.csv"
-        pd.DataFrame(rows).to_csv(out, index=False, float_format="%.5g")
+        write_text(out, pd.DataFrame(rows).to_csv(index=False, float_format="%.5g"))
         print(f"wrote {out}")
     return 0
 

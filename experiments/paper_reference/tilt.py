@@ -31,7 +31,7 @@ import pandas as pd
 from condor.files import write_text
 from condor.model.scenes import get_scene
 from condor.studies.fidelity import TILT
-from condor.studies.paper_reference import load_reference
+from condor.studies.paper_reference import budget_tag, load_reference
 
 HERE = Path(__file__).resolve().parent
 MORE_RUNS = runpy.run_path(str(HERE / "more_runs.py"))
@@ -76,15 +76,15 @@ def main(argv=None) -> int:
     scene, rng = get_scene("paper"), np.random.default_rng(0)
     rows, pooled = [], {}
     for m in a.moulds:
-        ensembles = {}
+        ensembles = {}  # name -> (runs' fields, the rung's budget or None)
         for budget in (1e5, 1e6):
             runs = MORE_RUNS["rung_runs"](scene, 2026, m, budget, HERE / "cache")
             if len(runs) >= 3:
-                ensembles[f"anneal {budget:.0e}".replace("+0", "")] = np.stack(
-                    [f for f, _ in runs.values()])
+                ensembles[f"anneal {budget_tag(budget)}"] = (
+                    np.stack([f for f, _ in runs.values()]), budget)
         sampler = MORE_RUNS["sampler_runs"](scene, 2026, m, MORE_RUNS["RECIPE"], a.seeds)
-        ensembles["the dataset's solver"] = np.stack([f for f, _ in sampler])
-        for name, fields in ensembles.items():
+        ensembles["the dataset's solver"] = (np.stack([f for f, _ in sampler]), None)
+        for name, (fields, budget) in ensembles.items():
             tilt = fields[:, list(TILT)].astype(np.float64)
             e2, se, s2 = tilt_squares(tilt)
             pooled.setdefault(name, []).append(gram(tilt))
@@ -92,9 +92,9 @@ def main(argv=None) -> int:
                    "SxSz_sq": e2[0], "SxSz_sq_se": se[0], "SxSz_scatter_sq": s2[0],
                    "SySz_sq": e2[1], "SySz_sq_se": se[1], "SySz_scatter_sq": s2[1],
                    "sign_flip_p": sign_flip_p([gram(tilt)], a.draws, rng)}
-            if name.startswith("anneal"):
+            if budget is not None:
                 shipped = [r for folder in (None, HERE / "rung_1e5")
-                           for r in _maybe(scene, m, float(name.split()[1]), folder)]
+                           for r in _maybe(scene, m, budget, folder)]
                 z = [r.positions[:, 2] for r in shipped]
                 row.update(mean_height=float(np.mean([h.mean() for h in z])),
                            on_floor=all(h.min() < 1e-6 for h in z))

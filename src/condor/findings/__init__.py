@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pandas as pd
 
+from condor.files import write_text
+
 HERE = Path(__file__).resolve().parent
 
 
@@ -119,8 +121,6 @@ def record_finding(key: str, entry: dict, table: pd.DataFrame | None = None,
     """Ship one finding, as a study's script does: `table` (if given) written to entry["table"]
     beside `path`, then `entry` set under `key` in `path`, each file whole or not at all.
     Raises ValueError, writing nothing, for an entry that lacks its provenance."""
-    from condor.files import write_text
-
     missing = [k for k in ("question", "experiment", "source", "commit") if not entry.get(k)]
     if missing or (table is not None and not entry.get("table")):
         raise ValueError(f"finding {key!r} lacks {missing or ['table']}")
