@@ -144,3 +144,47 @@ def test_the_best_estimate_weighs_prediction_and_simulations_by_their_errors():
     best, weight = best_estimate(off, reps)
     assert weight[1] < 0.05 and weight[0] > 0.95
     assert abs(best[1].sum() / small[1].sum() - 1) < 0.02  # the replicas' tension, not 30% off
+
+
+def test_a_checks_verdict_reads_the_bin_its_ratio_falls_in_and_flags_at_the_threshold(tmp_path):
+    """with_verdict against a check_verdict finding written here: the line quotes the counts of
+    the bin the check's ratio falls in ([lo, hi): an edge belongs to the bin above it), the mould
+    is flagged at or above the threshold and not below it, and a check of another number of
+    simulations than the finding's is left as it was."""
+    import pandas as pd
+
+    from condor.findings import load_findings, record_finding
+    from condor.stages.check import Check, with_verdict
+
+    path = tmp_path / "findings.json"
+    path.write_text("{}")
+    table = pd.DataFrame({"ratio_lo": [0.0, 0.8, 1.0], "ratio_hi": [0.8, 1.0, math.inf],
+                          "n_moulds": [30, 10, 20], "n_above": [1, 4, 18],
+                          "share_above": [1 / 30, 0.4, 0.9]})
+    record_finding("check_verdict", {"question": "q", "table": "check_verdict.csv",
+                                     "experiment": "experiments/check_verdict", "source": "s",
+                                     "commit": "abc", "values": {"threshold": 0.8, "n_check": 4}},
+                   table, path=path)
+    finding = load_findings(path)["check_verdict"]
+
+    def checked(ratio, n=4):
+        return with_verdict(Check(n=n, error=ratio, ceiling=1.0, table=pd.DataFrame(),
+                                  failed=[], seconds=0.0), finding)
+
+    low, edge, mid, off = checked(0.5), checked(0.8), checked(0.95), checked(1.3)
+    assert (low.flagged, edge.flagged, mid.flagged, off.flagged) == (False, True, True, True)
+    assert "of 30 moulds whose check of 4 read 0-0.8x, 1 lay above" in low.verdict
+    assert "MAY be off" not in low.verdict
+    assert "MAY be off" in edge.verdict and "of 10 moulds" in edge.verdict
+    assert "MAY be off" in mid.verdict and "4 lay above" in mid.verdict
+    assert "read 1x and above, 18 lay above" in off.verdict and "MAY" not in off.verdict
+    lines = off.lines()
+    assert any("is off on this mould" in line for line in lines) and lines[-1].strip() == off.verdict
+    assert off.attributes()["flagged"] is True
+    other = checked(1.3, n=6)
+    assert other.verdict is None and other.flagged is None
+    with pytest.raises(ValueError, match="lacks the values"):
+        record_finding("check_verdict", {"question": "q", "table": "check_verdict.csv",
+                                         "experiment": "e", "source": "s", "commit": "abc",
+                                         "values": {"threshold": 0.8}}, table, path=path)
+        load_findings(path)

@@ -76,11 +76,17 @@ GENERALISATION_COLUMNS = ("family", "held_out", "n_moulds", "replicas", "error",
 # checkpoint checked by simulation on each mould, one row a mould.
 NEVER_DRAWN_COLUMNS = ("kind", "variant", "replicas", "error", "ceiling", "ratio",
                        "tension_bias")
+# What a check of a few simulations reads, against the truth (experiments/check_verdict): per bin
+# of the check's ratio (the prediction's error against the simulations' mean over their scatter),
+# the moulds checked and how many lay above one simulation's scatter by 8 more simulations; the
+# finding's values hold the `threshold` at or above which predict flags a mould and `n_check`.
+CHECK_VERDICT_COLUMNS = ("ratio_lo", "ratio_hi", "n_moulds", "n_above", "share_above")
 TABLE_COLUMNS = {"out_of_domain": OUT_OF_DOMAIN_COLUMNS, "never_drawn": NEVER_DRAWN_COLUMNS,
+                 "check_verdict": CHECK_VERDICT_COLUMNS,
                  "spread_calibration": SPREAD_CALIBRATION_COLUMNS,
                  "novelty": NOVELTY_COLUMNS, "generalisation": GENERALISATION_COLUMNS}
 # Values a finding must state, for the findings the product reads by key.
-VALUE_KEYS = {"novelty": ("threshold", "score")}
+VALUE_KEYS = {"novelty": ("threshold", "score"), "check_verdict": ("threshold", "n_check")}
 
 
 def load_findings(path=HERE / "findings.json") -> dict[str, Finding]:

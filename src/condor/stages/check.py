@@ -64,6 +64,8 @@ class Check:
     tension_weight: float = math.nan  # and tension (best_estimate, WEIGHT_GROUPS)
     automatic: bool = False  # run by default (`--check auto`), not asked for
     n_cells: float = math.nan  # the simulated mould's cells (each replica's sum P)
+    verdict: str | None = None  # what moulds that checked alike were found to be (with_verdict)
+    flagged: bool | None = None  # the surrogate may be off: the ratio at or above the threshold
 
     @property
     def ratio(self) -> float:
@@ -74,7 +76,7 @@ class Check:
     def attributes(self) -> dict:
         """The check as JSON-ready attributes (a prediction store's `check`)."""
         return {"simulations": self.n, "error": self.error, "ceiling": self.ceiling,
-                "ratio": self.ratio, "best_weight": self.weight,
+                "ratio": self.ratio, "flagged": self.flagged, "best_weight": self.weight,
                 "best_tension_weight": self.tension_weight, "automatic": self.automatic,
                 "seconds": self.seconds,
                 "seeds": f"condor.data.seeds.replica_seed({CHECK_SEED}, 0, k), k = 0..",
@@ -101,6 +103,8 @@ class Check:
             lines.append(f"  the surrogate is off on this mould: the {self.n} simulations' mean "
                          "is the better guide (`simulated` in the .zarr, the row of simulated "
                          "panels in the .png)")
+        if self.verdict is not None:
+            lines.append(f"  {self.verdict}")
         if math.isfinite(self.weight):
             lines.append("  the answer written (`raw` and `normalised` in the .zarr, the top "
                          "panels of the .png) is the best estimate: the prediction and the "
@@ -121,6 +125,34 @@ class Check:
 # off in T kept its weight and carried its tension error (experiments/generalisation/checked:
 # per-mould mean tension off by up to 23% against 4% weighed apart, the field error the same).
 WEIGHT_GROUPS = (("T",), ("P", "Sx2", "Sy2", "Sz2", "SxSy", "SxSz", "SySz"))
+
+
+def with_verdict(check: Check, finding=None) -> Check:
+    """`check` with what moulds that checked alike were found to be: from the `check_verdict`
+    finding (condor.findings; experiments/check_verdict: moulds checked by as many simulations
+    and scored against 8 others), `flagged` when its ratio is at or above the finding's
+    threshold, and `verdict`, a line on how many moulds whose check read in the same bin lay
+    above one simulation's scatter. `check` as it is when it ran another number of simulations
+    than the finding's (the calibration does not hold for it) or when no finding is shipped."""
+    if finding is None:
+        from condor.findings import load_findings
+        finding = load_findings().get("check_verdict")
+    if (finding is None or check.n != int(finding.values["n_check"])
+            or not math.isfinite(check.ratio)):
+        return check
+    threshold, ratio = float(finding.values["threshold"]), check.ratio
+    rows = finding.frame()
+    row = rows[(rows.ratio_lo <= ratio) & (ratio < rows.ratio_hi)].iloc[0]
+    flagged = ratio >= threshold
+    band = (f"{row.ratio_lo:.2g}x and above" if not math.isfinite(row.ratio_hi) else
+            f"{row.ratio_lo:.2g}-{row.ratio_hi:.2g}x")
+    measured = (f"of {int(row.n_moulds)} moulds whose check of {check.n} read {band}, "
+                f"{int(row.n_above)} lay above one simulation's scatter by 8 more simulations "
+                f"({finding.provenance})")
+    if flagged and ratio <= 1:
+        measured = (f"the surrogate MAY be off on this mould (flagged at a check of "
+                    f"{threshold:.2g}x and above): {measured}")
+    return replace(check, verdict=measured, flagged=bool(flagged))
 
 
 def best_estimate(predicted: np.ndarray, replicas: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -179,8 +211,9 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
                      automatic: bool = False) -> Check:
     """Simulate `mould` (a condor.moulds.mould.Mould placed in `scene`) `n` times with `solver`
     (None: the product's) and score `predicted_normalised` (8, H, W, the scene's grid; its N_c
-    `n_cells`) against the replicas (class Check). `say(line)`: one line a replica, as each finishes. ValueError
-    when n < MIN_CHECK or fewer than MIN_CHECK replicas finish ok."""
+    `n_cells`) against the replicas (class Check, with_verdict's verdict on it). `say(line)`:
+    one line a replica, as each finishes. ValueError when n < MIN_CHECK or fewer than
+    MIN_CHECK replicas finish ok."""
     if n < MIN_CHECK:
         raise ValueError(f"--check {n}: the noise of the simulations' mean needs at least "
                          f"{MIN_CHECK} of them (3 or more for a steadier figure)")
@@ -230,13 +263,14 @@ def check_prediction(mould, scene: Scene, predicted_normalised: np.ndarray, n_ce
                      "difference_in_sd": difference / sd if sd > 0 else math.nan})
     raws = np.stack(raws).astype(np.float64)
     best, weights = best_estimate(predicted[0], replicas[0])
-    return Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),
-                 failed=failed, seconds=time.monotonic() - start,
-                 simulated=raws.mean(axis=0).astype(np.float32),
-                 simulated_sd=raws.std(axis=0, ddof=1).astype(np.float32),
-                 simulated_normalised=replicas[0].mean(axis=0).astype(np.float32),
-                 best_normalised=best.astype(np.float32),
-                 weight=float(weights[FIELD_NAMES.index("P")]),
-                 tension_weight=float(weights[FIELD_NAMES.index("T")]), automatic=automatic,
-                 n_cells=float(np.mean(counts)))
+    check = Check(n=len(fields), error=error, ceiling=ceiling, table=pd.DataFrame(rows),
+                  failed=failed, seconds=time.monotonic() - start,
+                  simulated=raws.mean(axis=0).astype(np.float32),
+                  simulated_sd=raws.std(axis=0, ddof=1).astype(np.float32),
+                  simulated_normalised=replicas[0].mean(axis=0).astype(np.float32),
+                  best_normalised=best.astype(np.float32),
+                  weight=float(weights[FIELD_NAMES.index("P")]),
+                  tension_weight=float(weights[FIELD_NAMES.index("T")]), automatic=automatic,
+                  n_cells=float(np.mean(counts)))
+    return with_verdict(check)
 
