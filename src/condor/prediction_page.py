@@ -146,7 +146,8 @@ def prediction_panels(inputs, prediction, path, title: str = "", summary=None,
     if simulated:
         lines.append(f"checked by {check.n} simulations: the surrogate alone lies "
                      f"{check.ratio:.2f}x one simulation's scatter from their mean"
-                     + (" (off on this mould)" if check.ratio > 1 else "")
+                     + (" (off on this mould)" if check.ratio > 1 else
+                        " (may be off on this mould)" if check.flagged else "")
                      + ("; the fields above combine the two, "
                         f"{100 * check.weight:.0f}% the surrogate's "
                         f"({100 * check.tension_weight:.0f}% in tension)"
