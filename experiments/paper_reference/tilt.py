@@ -71,6 +71,9 @@ def main(argv=None) -> int:
     ap.add_argument("--moulds", type=int, nargs="+", default=list(MOULDS))
     ap.add_argument("--seeds", type=int, default=16, help="the sampler's runs a mould")
     ap.add_argument("--draws", type=int, default=20000)
+    ap.add_argument("--recipes", nargs="+", default=[MORE_RUNS["RECIPE"]],
+                    help="samplers (experiments/fast_sampler/run.py's methods, cached there) to "
+                         "test beside the anneals; RECIPE is named the dataset's solver")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
     scene, rng = get_scene("paper"), np.random.default_rng(0)
@@ -82,8 +85,10 @@ def main(argv=None) -> int:
             if len(runs) >= 3:
                 ensembles[f"anneal {budget_tag(budget)}"] = (
                     np.stack([f for f, _ in runs.values()]), budget)
-        sampler = MORE_RUNS["sampler_runs"](scene, 2026, m, MORE_RUNS["RECIPE"], a.seeds)
-        ensembles["the dataset's solver"] = (np.stack([f for f, _ in sampler]), None)
+        for recipe in a.recipes:
+            sampler = MORE_RUNS["sampler_runs"](scene, 2026, m, recipe, a.seeds)
+            name = "the dataset's solver" if recipe == MORE_RUNS["RECIPE"] else recipe
+            ensembles[name] = (np.stack([f for f, _ in sampler]), None)
         for name, (fields, budget) in ensembles.items():
             tilt = fields[:, list(TILT)].astype(np.float64)
             e2, se, s2 = tilt_squares(tilt)
