@@ -188,3 +188,32 @@ def test_a_checks_verdict_reads_the_bin_its_ratio_falls_in_and_flags_at_the_thre
                                          "experiment": "e", "source": "s", "commit": "abc",
                                          "values": {"threshold": 0.8}}, table, path=path)
         load_findings(path)
+
+
+def test_the_check_threshold_is_the_highest_bin_edge_that_catches_nine_in_ten():
+    """experiments/check_verdict/calibrate.py on synthetic checks (the truth's ratio read with
+    noise): its threshold equals a brute-force search over the bins' inner edges, its rates are
+    the counts, and its bins hold every mould once."""
+    import runpy
+    from pathlib import Path
+
+    import pandas as pd
+
+    study = runpy.run_path(str(Path(__file__).resolve().parents[1] / "experiments" /
+                               "check_verdict" / "calibrate.py"))
+    rng = np.random.default_rng(3)
+    truth = rng.lognormal(-0.2, 0.5, 300)
+    table = pd.DataFrame({"truth_ratio": truth,
+                          "check_ratio": truth * rng.lognormal(0.0, 0.2, truth.size)})
+    above = truth > 1
+    passing = [t for t in study["EDGES"][1:-1]
+               if (table.check_ratio[above] >= t).mean() >= study["CATCH"]]
+    t = study["threshold"](table)
+    assert t == max(passing)
+    caught, false_alarms = study["rates"](table, t)
+    assert caught == pytest.approx(np.mean(table.check_ratio[above] >= t))
+    assert false_alarms == pytest.approx(np.mean(table.check_ratio[~above] >= t))
+    bins = study["bins"](table)
+    assert bins.n_moulds.sum() == len(table) and bins.n_above.sum() == above.sum()
+    held = study["held_out_rates"](table, splits=20)
+    assert held.shape == (40, 2) and np.median(held[:, 0]) > 0.8
