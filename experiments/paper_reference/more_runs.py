@@ -35,8 +35,9 @@ HERE = Path(__file__).resolve().parent
 FAST_SAMPLER_CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
 RECIPE = "relax:0.03:0.001:80:10:200+20,40:1e-3"  # the paper scene's (docs/model.md)
 # runs beyond the shipped three, packed like the product (condor.studies.paper_reference
-# .pack_mould), one folder a rung so that each file keeps within the file-size rule
-MORE_RUNS = (HERE / "more_runs_1e5", HERE / "more_runs_1e6")
+# .pack_mould), one folder a rung (and more_runs_1e6_k5/ for runs 5 and 6 of the 1e6 rung) so
+# that each file keeps within the file-size rule
+MORE_RUNS = (HERE / "more_runs_1e5", HERE / "more_runs_1e6", HERE / "more_runs_1e6_k5")
 
 
 def rung_runs(scene, seed: int, mould: int, budget: float, cache: Path) -> dict:

@@ -71,9 +71,10 @@ def main(argv=None) -> int:
     ap.add_argument("--moulds", type=int, nargs="+", default=list(MOULDS))
     ap.add_argument("--seeds", type=int, default=16, help="the sampler's runs a mould")
     ap.add_argument("--draws", type=int, default=20000)
-    ap.add_argument("--recipes", nargs="+", default=[MORE_RUNS["RECIPE"]],
+    ap.add_argument("--recipes", nargs="*", default=[MORE_RUNS["RECIPE"]],
                     help="samplers (experiments/fast_sampler/run.py's methods, cached there) to "
-                         "test beside the anneals; RECIPE is named the dataset's solver")
+                         "test beside the anneals; RECIPE is named the dataset's solver; none: "
+                         "the anneals alone")
     ap.add_argument("--out", type=Path, required=True)
     a = ap.parse_args(argv)
     scene, rng = get_scene("paper"), np.random.default_rng(0)
