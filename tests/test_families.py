@@ -217,3 +217,33 @@ def test_the_check_threshold_is_the_highest_bin_edge_that_catches_nine_in_ten():
     assert bins.n_moulds.sum() == len(table) and bins.n_above.sum() == above.sum()
     held = study["held_out_rates"](table, splits=20)
     assert held.shape == (40, 2) and np.median(held[:, 0]) > 0.8
+
+
+def test_where_errors_classes_pixels_by_their_l1_distance_to_posts_and_outside(monkeypatch):
+    """experiments/generalisation/where_errors.py's pixel classes against a brute-force L1
+    distance (its dilations use the 4-connected cross) on a square mould with one post."""
+    import runpy
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[1] / "experiments" / "generalisation"
+    monkeypatch.syspath_prepend(str(folder))
+    study = runpy.run_path(str(folder / "where_errors.py"))
+    n = 24
+    mobile, fixed = np.zeros((n, n)), np.zeros((n, n))
+    mobile[3:20, 2:21] = 1.0
+    fixed[10:12, 8:10], mobile[10:12, 8:10] = 1.0, 0.0
+    classes = study["pixel_classes"](np.stack([mobile, fixed])[None])[0]
+    names = study["CLASSES"]
+    yy, xx = np.mgrid[:n, :n]
+
+    def l1_to(mask):
+        ys, xs = np.nonzero(mask)
+        return np.min(np.abs(yy[..., None] - ys) + np.abs(xx[..., None] - xs), axis=-1)
+
+    cells, post = (mobile + fixed) > 0, fixed > 0
+    near_post = (l1_to(post) <= study["RING"]) & ~post
+    near_out = (l1_to(~cells) <= study["RING"]) & cells & ~post & ~near_post
+    expected = np.where(~cells, "outside", np.where(post, "post", np.where(
+        near_post, "beside_post", np.where(near_out, "edge", "inside"))))
+    assert (np.array(names)[classes] == expected).all()
+    assert {"post", "beside_post", "edge", "inside", "outside"} == set(expected.ravel())
