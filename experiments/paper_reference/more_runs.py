@@ -116,19 +116,27 @@ def main(argv=None) -> int:
     rows = []
     for m in a.moulds:
         low, high = (rung_runs(scene, a.seed, m, b, a.cache) for b in a.rungs)
+        if not high:
+            raise SystemExit(f"mould {m}: no finished run of the {upper_tag} rung (run.py "
+                             f"--moulds {m} --rungs {a.rungs[1]:g})")
         pairs = sorted(set(low) & set(high))
-        lower = np.stack([low[k][0] for k in pairs])[None]
-        upper = np.stack([high[k][0] for k in pairs])[None]
-        row = fidelity_row(lower_tag, scene.name, upper_tag, lower, upper,
-                           energy=np.array([[low[k][1] for k in pairs]]),
-                           ref_energy=np.array([[high[k][1] for k in pairs]]), paired=True)
-        rows.append({**row, **field_split(lower, upper, True), **jackknife(lower, upper, True),
-                     "mould": m,
-                     "runs": " ".join(map(str, pairs))})
+        if pairs:  # the ladder, run k against run k (a mould with no lower rung has none)
+            lower = np.stack([low[k][0] for k in pairs])[None]
+            upper = np.stack([high[k][0] for k in pairs])[None]
+            row = fidelity_row(lower_tag, scene.name, upper_tag, lower, upper,
+                               energy=np.array([[low[k][1] for k in pairs]]),
+                               ref_energy=np.array([[high[k][1] for k in pairs]]), paired=True)
+            rows.append({**row, **field_split(lower, upper, True),
+                         **jackknife(lower, upper, True), "mould": m,
+                         "runs": " ".join(map(str, pairs))})
+        else:
+            print(f"mould {m}: no run of the {lower_tag} rung, so no ladder row")
         sampler = sampler_runs(scene, a.seed, m, a.method, a.seeds)
         fields = np.stack([f for f, _ in sampler])[None]
         energy = np.array([[e for _, e in sampler]])
         for rung, tag in ((high, upper_tag), (low, lower_tag)):
+            if len(rung) < 2:  # a reference needs two runs for its noise
+                continue
             for runs in (sorted(rung), sorted(rung)[:3]):
                 reference = np.stack([rung[k][0] for k in runs])[None]
                 row = fidelity_row(a.method, scene.name, tag, fields, reference, energy=energy,
