@@ -28,6 +28,7 @@ from scipy import ndimage  # noqa: E402
 
 from condor.data.fields import FIELD_NAMES  # noqa: E402
 from condor.data.store import open_store  # noqa: E402
+from condor.measures import estimators as est  # noqa: E402
 from condor.measures.metrics import normalise_predicted  # noqa: E402
 from condor.studies.recipes import reference_ensemble  # noqa: E402
 from condor.studies.scoring import predict_replica_moulds  # noqa: E402
@@ -101,21 +102,21 @@ def main(argv=None) -> int:
     truth = ens.normalised  # (M, R, 8, H, W)
     raw = predict_replica_moulds(a.checkpoint, ds, list(ens.moulds))
     pred = normalise_predicted(raw).astype(np.float64)
-    mean = np.nanmean(truth, axis=1)
-    counts = np.sum(np.isfinite(truth[:, :, 0, 0, 0]), axis=1)
-    noise = np.nanvar(truth, axis=1, ddof=1) / counts[:, None, None, None]
+    mean = est.replica_mean(truth)
+    one_sim = est.replica_variance(truth)  # one simulation's expected squared error
+    noise = one_sim / est.replica_counts(truth)[:, None, None, None]  # the mean's
     excess = (pred - mean) ** 2 - noise  # (M, 8, H, W)
-    one_sim = np.nanvar(truth, axis=1, ddof=1)  # one simulation's expected squared error
     classes = pixel_classes(np.asarray(ens.lattice, dtype=np.float64))
 
     rows = []
     for family in dict.fromkeys(labels):
         idx = labels == family
-        total = excess[idx].sum()
+        family_excess = excess[idx]
+        total = family_excess.sum()
         ceiling = one_sim[idx].sum()
         for k, name in enumerate(CLASSES):
             sel = classes[idx] == k  # (m, H, W)
-            per_field = [excess[idx][:, f][sel].sum() for f in range(len(FIELD_NAMES))]
+            per_field = [family_excess[:, f][sel].sum() for f in range(len(FIELD_NAMES))]
             rows.append({"family": family, "class": name, "pixel_share": sel.mean(),
                          "excess_share": float(np.sum(per_field) / total),
                          "excess_over_ceiling": float(np.sum(per_field) / ceiling),
