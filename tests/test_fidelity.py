@@ -227,3 +227,26 @@ def test_paired_rungs_pair_run_k_with_run_k_whatever_order_the_runs_were_packed(
             assert own.seed == reference_seed(2026, 5, k)
             assert energies[i] == own.energy_per_cell
     assert paired_rungs(scene, 2026, 6, 20, 40, (folder,)) == ([], [], [], [])
+
+
+def test_rung_by_run_gathers_a_rungs_runs_from_every_folder_by_run_number(tmp_path):
+    """Runs 0 and 1 shipped in one folder, run 2 packed in another (a study's more_runs_*),
+    a folder without the mould passed over: the rung holds all three, in run order, each the
+    run its own seed made."""
+    from condor.studies.paper_reference import rung_by_run
+
+    scene = get_scene("tiny")
+    product, more = tmp_path / "product", tmp_path / "more"
+    for k in (0, 1):
+        run_reference(tmp_path / "cache", scene, 2026, 5, 20, k)
+    pack_mould(tmp_path / "cache", scene, 2026, 5, [20], 3, {"commit": "test"}, product)
+    third = run_reference(tmp_path / "cache_more", scene, 2026, 5, 20, 2)
+    pack_mould(tmp_path / "cache_more", scene, 2026, 5, [20], 3, {"commit": "test"}, more)
+    assert [r.run for r in load_reference("tiny", 2026, 5, 20, folder=more)] == [2]
+    runs = rung_by_run(scene, 2026, 5, 20, (tmp_path / "empty", product, more))
+    assert list(runs) == [0, 1, 2]
+    assert runs[2][1] == third.energy_per_cell
+    shipped = load_reference("tiny", 2026, 5, 20, folder=product)
+    assert np.array_equal(runs[1][0], shipped[1].fields(scene))
+    # the product's runs alone where the other folder adds none of this rung
+    assert list(rung_by_run(scene, 2026, 5, 40, (product, more))) == []

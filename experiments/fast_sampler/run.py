@@ -42,7 +42,8 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.data.seeds import replica_seed  # noqa: E402
 from condor.model.simulate import SimResult, simulate_lattice, warm_up  # noqa: E402
 from condor.studies.fidelity import fidelity_row  # noqa: E402
-from condor.studies.paper_reference import budget_tag, mould_of, reference_rung_from, scene_fields  # noqa: E402
+from condor.studies.paper_reference import (budget_tag, mould_of, reference_rung_from,  # noqa: E402
+                                           rung_by_run, scene_fields)
 
 CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
 # the paper scene's 1e5 runs of moulds whose 1e6 rung is complete, out of the product files
@@ -118,6 +119,10 @@ def main(argv=None) -> int:
     ap.add_argument("--moved-folder", type=Path, default=RUNGS_MOVED,
                     help="where a rung moved out of the product lies (read for a mould whose "
                          "product file lacks it)")
+    ap.add_argument("--more-runs", type=Path, nargs="+", default=[], metavar="FOLDER",
+                    help="add a rung's runs packed in these folders to the reference's, by run "
+                         "number (experiments/paper_reference/more_runs_*: runs beyond the "
+                         "shipped three)")
     ap.add_argument("--z-symmetric", action="store_true",
                     help="score the ensembles symmetrised under z -> depth - z, the tilt "
                          "fields' noise left out (studies.fidelity, docs/model.md)")
@@ -130,12 +135,18 @@ def main(argv=None) -> int:
     moulds = [mould_of(scene, a.seed, m) for m in a.moulds]
     refs = {}
     for budget in a.reference:
-        f, e = map(list, zip(*(reference_rung_from(scene, a.seed, m, budget,
-                                                   (a.reference_folder, a.moved_folder)) for m in a.moulds)))
+        folders = (a.reference_folder, a.moved_folder)
+        if a.more_runs:  # every run of the rung, wherever it is packed
+            runs = [list(rung_by_run(scene, a.seed, m, budget, (*folders, *a.more_runs)).values())
+                    for m in a.moulds]
+            f, e = [[x[0] for x in r] for r in runs], [[x[1] for x in r] for r in runs]
+        else:
+            f, e = map(list, zip(*(reference_rung_from(scene, a.seed, m, budget, folders)
+                                   for m in a.moulds)))
         keep = [i for i, x in enumerate(f) if len(x) >= 2]
         refs[budget] = (keep, f, e)
-        print(f"reference anneal {budget_tag(budget)}: {len(keep)} moulds with >= 2 runs",
-              flush=True)
+        print(f"reference anneal {budget_tag(budget)}: {len(keep)} moulds with >= 2 runs ("
+              + ", ".join(f"{m}: {len(x)}" for m, x in zip(a.moulds, f)) + ")", flush=True)
     rows = []
     for spec in a.methods:
         fields, energy, evals = [], [], []

@@ -29,7 +29,7 @@ from condor.files import write_text
 from condor.model.scenes import get_scene
 from condor.model.simulate import SimResult
 from condor.studies.fidelity import TILT, fidelity_row
-from condor.studies.paper_reference import budget_tag, load_reference, run_path, scene_fields
+from condor.studies.paper_reference import budget_tag, rung_by_run, run_path, scene_fields
 
 HERE = Path(__file__).resolve().parent
 FAST_SAMPLER_CACHE = Path.home() / ".cache" / "condor" / "fast_sampler"
@@ -43,14 +43,7 @@ MORE_RUNS = (HERE / "more_runs_1e5", HERE / "more_runs_1e6", HERE / "more_runs_1
 def rung_runs(scene, seed: int, mould: int, budget: float, cache: Path) -> dict:
     """run number -> (normalised fields, E/cell): the shipped runs (the product, else
     rung_1e5/), those of MORE_RUNS, and the cache's finished runs of any other number."""
-    runs = {}
-    for folder in (None, HERE / "rung_1e5", *MORE_RUNS):
-        try:
-            shipped = load_reference(scene.name, seed, mould, budget, folder)
-        except FileNotFoundError:
-            continue
-        for r in shipped:
-            runs.setdefault(r.run, (r.fields(scene), r.energy_per_cell))
+    runs = rung_by_run(scene, seed, mould, budget, (None, HERE / "rung_1e5", *MORE_RUNS))
     k = 0
     while k < 100:
         path = run_path(cache, scene, seed, mould, budget, k)

@@ -235,6 +235,24 @@ def reference_rung_from(scene: Scene, dataset_seed: int, mould_id: int, budget: 
     return next((r for r in found if len(r[0]) >= 2), found[0])
 
 
+def rung_by_run(scene: Scene, dataset_seed: int, mould_id: int, budget: float,
+                folders) -> dict:
+    """Every shipped ok run of a mould's rung across `folders` (None: the product), by run
+    number: {run: (normalised fields, energy per cell)}, in run order. A run number held by
+    two folders is read from the first (runs beyond the shipped three are packed in a study's
+    folders: experiments/paper_reference/more_runs_*)."""
+    runs = {}
+    for folder in folders:
+        try:
+            shipped = load_reference(scene.name, dataset_seed, mould_id, budget, folder)
+        except FileNotFoundError:
+            continue
+        for r in shipped:
+            if r.run not in runs:
+                runs[r.run] = (r.fields(scene), r.energy_per_cell)
+    return dict(sorted(runs.items()))
+
+
 def paired_rungs(scene: Scene, dataset_seed: int, mould_id: int, lower: float, upper: float,
                  folders):
     """Two rungs of a mould, each from the first of `folders` (None: the product) holding at
