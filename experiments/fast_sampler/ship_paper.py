@@ -10,7 +10,8 @@ report shows with the ladder beside it.
       --ladder-even experiments/paper_reference/ladder_paper_six_even_1e6.csv
 
 --solvers (--solvers-even): run.py's table of the dataset's recipe (relax:...) and the quench
-against the 1e6 rung (with --z-symmetric); --ladder (--ladder-even): tables.py's 1e5 against
+against the 1e6 rung (with --z-symmetric), every run of it with --more-runs (--reference-runs
+names how many a mould, for the finding's source); --ladder (--ladder-even): tables.py's 1e5 against
 1e6, run k against run k (with --z-symmetric).
 """
 
@@ -78,6 +79,9 @@ def main(argv=None) -> int:
     ap.add_argument("--commit", required=True, help="the commit the tables were measured at")
     for name in ("--solvers", "--solvers-even", "--ladder", "--ladder-even"):
         ap.add_argument(name, type=Path, required=True)
+    ap.add_argument("--reference-runs", default="",
+                    help="the 1e6 rung's runs the solvers' tables read, as the finding's source "
+                         "should say (e.g. run.py --more-runs: '94: 7, 647: 4, ...')")
     a = ap.parse_args(argv)
     solvers, solvers_even, ladder, ladder_even = (
         pd.read_csv(p) for p in (a.solvers, a.solvers_even, a.ladder, a.ladder_even))
@@ -109,7 +113,9 @@ def main(argv=None) -> int:
                   f"{a.ladder_even.name}: noise-corrected distance of the "
                   "ensemble means, RMS over the normalised fields (divided by all 8), 95% "
                   "bootstrap interval over moulds; one simulation's scatter; "
-                  "evaluation-equivalents a mould",
+                  "evaluation-equivalents a mould"
+                  + (f"; the 1e6 rung's runs a mould: {a.reference_runs}" if a.reference_runs
+                     else ""),
         "commit": a.commit,
     }, table, float_format="%.4g")
     print(table.to_string(index=False))
