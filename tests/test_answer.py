@@ -231,6 +231,45 @@ def test_the_calibration_warns_only_for_a_checkpoint_it_was_not_fitted_for():
         spread_factors(pd.concat([_calibration_table(sha), _calibration_table(sha).iloc[:1]]))
 
 
+def test_another_training_of_the_fitted_recipe_gets_a_note_not_a_warning():
+    """The default run trained on another machine has other weights and the same recipe: its
+    factors apply without a warning, and the note says whose they are. A checkpoint of
+    another recipe is warned, and so is any checkpoint where the table names no recipe."""
+    sha, other, recipe = "a" * 64, "b" * 64, "c" * 64
+    table = _calibration_table(sha).assign(recipe_sha256=recipe)
+    _, note, warning = spread_calibration(table, other, "exp at abc", recipe)
+    assert warning is None and "another training of this checkpoint's recipe" in note
+    _, note, warning = spread_calibration(table, sha, "exp at abc", recipe)
+    assert warning is None and "another training" not in note  # the very weights
+    _, _, warning = spread_calibration(table, other, "exp at abc", "d" * 64)
+    assert sha[:12] in warning and other[:12] in warning
+    _, _, warning = spread_calibration(_calibration_table(sha), other, "exp at abc", recipe)
+    assert warning is not None
+
+
+def test_a_recipe_is_its_settings_network_and_data_description_not_threads_or_data_bits():
+    """recipe_sha256 is blind to the thread count and to the data's fingerprint (the bytes,
+    which differ between machines), and sees a training setting, the network's width and the
+    number of training samples."""
+    import copy
+
+    from condor.surrogate.checkpoint import recipe_sha256
+
+    state = {"config": {"epochs": 120, "num_threads": 2, "field_weights": (2.0, 1.0)},
+             "generator_config": {"base": 32, "depth": 4},
+             "data": {"n_train": 495, "fingerprint": "f" * 64}, "generator": {}}
+    base = recipe_sha256(state)
+    assert len(base) == 64
+    for key, name, value, same in (("config", "num_threads", 8, True),
+                                   ("data", "fingerprint", "0" * 64, True),
+                                   ("config", "epochs", 60, False),
+                                   ("generator_config", "base", 48, False),
+                                   ("data", "n_train", 400, False)):
+        changed = copy.deepcopy(state)
+        changed[key][name] = value
+        assert (recipe_sha256(changed) == base) == same, (key, name)
+
+
 def test_a_network_is_known_by_its_weights_not_its_file(tmp_path):
     """Two checkpoints of the same weights whose histories differ (each epoch's wall-clock
     seconds) have one weights_sha256; another weight does not."""

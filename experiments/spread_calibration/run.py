@@ -27,7 +27,8 @@ Per statistic (condor.surrogate.answer.SPREAD_STATISTICS):
              Gaussian scatter and 4 replicas about 0.89 when the spread is right).
 
 Writes, under --out: spread_calibration_<scene>.csv (the factors, one row per statistic:
-`statistic`, `factor`, `factor_lo`, `factor_hi`, `n_moulds`, `replicas`, `weights_sha256`;
+`statistic`, `factor`, `factor_lo`, `factor_hi`, `n_moulds`, `replicas`, `weights_sha256`,
+`recipe_sha256` (condor.surrogate.checkpoint: another training of the recipe gets no warning);
 copied as src/condor/findings/spread_calibration.csv), spread_calibration_score_<scene>.csv
 (before and after, fit and test moulds), spread_calibration_moulds_<scene>.csv (every mould).
 """
@@ -54,7 +55,7 @@ from condor.model.scenes import get_scene  # noqa: E402
 from condor.model.simulate import warm_up  # noqa: E402
 from condor.surrogate.answer import SPREAD_STATISTICS  # noqa: E402
 from condor.surrogate.calibration import statistic_spread_ratio  # noqa: E402
-from condor.surrogate.checkpoint import weights_sha256  # noqa: E402
+from condor.surrogate.checkpoint import recipe_sha256, weights_sha256  # noqa: E402
 
 
 def _out_of_domain():
@@ -143,7 +144,7 @@ def main(argv=None) -> None:
     config = Config.load(*args.config)
     scene = get_scene(args.scene) if args.scene else config.scene
     predictor = OOD.scene_predictor(args.checkpoint, scene)
-    sha = weights_sha256(predictor.state)
+    sha, recipe = weights_sha256(predictor.state), recipe_sha256(predictor.state)
     print(f"scene {scene.name}, seed {config.seed}, {args.fit} fit moulds x {args.replicas} "
           f"replicas, test moulds of {args.store}, checkpoint {args.checkpoint} ({sha[:12]})")
     warm_up()
@@ -167,7 +168,7 @@ def main(argv=None) -> None:
         factor, lo, hi = statistic_spread_ratio(fit[f"{name}_simulated_sd"], fit[f"{name}_spread"])
         table.append({"statistic": name, "factor": factor, "factor_lo": lo, "factor_hi": hi,
                       "n_moulds": len(fit), "replicas": int(fit["replicas"].min()),
-                      "weights_sha256": sha})
+                      "weights_sha256": sha, "recipe_sha256": recipe})
     table = pd.DataFrame(table)
     scores = score(moulds, dict(zip(table["statistic"], table["factor"])))
     out = Path(args.out)
@@ -178,7 +179,7 @@ def main(argv=None) -> None:
     moulds.to_csv(out / f"spread_calibration_moulds_{scene.name}.csv", index=False,
                   float_format="%.6g")
     with pd.option_context("display.width", 200, "display.max_columns", 30):
-        print(table.drop(columns=["weights_sha256"]).to_string(index=False,
+        print(table.drop(columns=["weights_sha256", "recipe_sha256"]).to_string(index=False,
                                                                   float_format="%.3g"))
         print(scores.to_string(index=False, float_format="%.3g"))
     print(f"{len(moulds)} moulds in {time.perf_counter() - start:.0f} s; tables in {out}")

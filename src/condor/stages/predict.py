@@ -292,7 +292,7 @@ def statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale: fl
     from condor.design.search import prediction_spread
     from condor.surrogate.answer import mould_summary, spread_calibration
     from condor.surrogate.calibration import tissue_pixels
-    from condor.surrogate.checkpoint import weights_sha256
+    from condor.surrogate.checkpoint import recipe_sha256, weights_sha256
 
     pixel_size = predictor.pixel_size
     if pixel_size is None:
@@ -303,7 +303,7 @@ def statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale: fl
         calibration = load_findings()["spread_calibration"]
         factors, calibrated, warning = spread_calibration(
             calibration.frame(), weights_sha256(predictor.state),
-            f"{calibration.experiment} at {calibration.commit}")
+            f"{calibration.experiment} at {calibration.commit}", recipe_sha256(predictor.state))
         if warning is not None:
             warn(warning)
     table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size, spread,

@@ -139,24 +139,31 @@ def spread_factors(table: pd.DataFrame) -> dict:
     return check_spread_factors(dict(zip(table["statistic"], table["factor"])))
 
 
-def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "") -> tuple:
+def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "",
+                       recipe: str | None = None) -> tuple:
     """(factors, note, warning) for `condor predict`: the factors of a spread-calibration table
     (spread_factors), a line saying where they were fitted (`provenance`: the finding's
     experiment and commit), and a warning when the checkpoint's network, `weights` (its
     condor.surrogate.checkpoint.weights_sha256), is not the one they were fitted for (the
-    table's `weights_sha256`), else None."""
+    table's `weights_sha256`) and its recipe, `recipe` (checkpoint.recipe_sha256), is not that
+    one's either (the table's `recipe_sha256`, where it has one), else None. Another training
+    of the same recipe (the default run on another machine) gets no warning: the note says
+    the factors were fitted for a sibling."""
     factors = spread_factors(table)
     fitted = sorted(set(table["weights_sha256"].astype(str)))
     if len(fitted) != 1:
         raise ValueError(f"spread calibration table names {len(fitted)} checkpoints "
                          f"({[s[:12] for s in fitted]}), not one")
     first = table.iloc[0]
+    sibling = (weights != fitted[0] and recipe is not None and "recipe_sha256" in table
+               and recipe in set(table["recipe_sha256"].astype(str)))
     note = (f"spreads calibrated per statistic on {int(first['n_moulds'])} moulds x "
-            f"{int(first['replicas'])} simulations of checkpoint {fitted[0][:12]} ("
+            f"{int(first['replicas'])} simulations of checkpoint {fitted[0][:12]}"
+            + (", another training of this checkpoint's recipe" if sibling else "") + " ("
             + ", ".join(f"{name} x{factors[name]:.2g}" for name in SPREAD_STATISTICS)
             + (f"; {provenance})" if provenance else ")"))
     warning = None
-    if weights != fitted[0]:
+    if weights != fitted[0] and not sibling:
         warning = (f"the statistics' spread factors were fitted for checkpoint {fitted[0][:12]}, "
                    f"not this one ({weights[:12]}): its spreads may be off by another factor; "
                    "experiments/spread_calibration/run.py fits them for it")

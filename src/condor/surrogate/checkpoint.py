@@ -58,6 +58,27 @@ def weights_sha256(state: dict) -> str:
     return digest.hexdigest()
 
 
+# What a checkpoint's recipe leaves out: a machine's setting, and the data's bytes, which differ
+# between machines that simulate the same moulds (their last bits), so two trainings of one
+# recipe on two machines differ in weights but not in recipe.
+NOT_RECIPE = {"config": ("num_threads",), "data": ("fingerprint",)}
+
+
+def recipe_sha256(state: dict) -> str:
+    """sha256 (hex) of what a checkpoint was trained to be: its training settings (but the
+    thread count), its network's shape and its data's description (sizes, fields, inputs, the
+    number of training samples; not the data's bytes). Two trainings of the default run on two
+    machines share it and differ in weights_sha256. Another dataset of the same description
+    shares it too: it names a recipe, not a dataset."""
+    import hashlib
+    import json
+
+    described = {key: {k: v for k, v in dict(state[key]).items() if k not in NOT_RECIPE.get(key, ())}
+                 for key in ("config", "generator_config", "data")}
+    text = json.dumps(described, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
 def load_checkpoint(path, map_location="cpu") -> dict:
     """Read a checkpoint; CheckpointNotFoundError when absent, CheckpointError when it is not
     a condor surrogate checkpoint."""
