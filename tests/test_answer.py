@@ -299,6 +299,7 @@ def test_the_shipped_calibration_names_every_statistic_once_and_a_checkpoint():
     assert (table["factor_lo"] <= table["factor"]).all() and \
         (table["factor"] <= table["factor_hi"]).all()
     assert table["weights_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()
+    assert table["recipe_sha256"].str.fullmatch(r"[0-9a-f]{64}").all()  # a sibling's factors too
 
 
 def test_the_printed_direction_says_when_the_alignment_is_within_its_spread():
