@@ -268,6 +268,7 @@ def test_a_recipe_is_its_settings_network_and_data_description_not_threads_or_da
         changed = copy.deepcopy(state)
         changed[key][name] = value
         assert (recipe_sha256(changed) == base) == same, (key, name)
+    assert recipe_sha256({"generator": {}}) is None  # a network without its recipe
 
 
 def test_a_network_is_known_by_its_weights_not_its_file(tmp_path):

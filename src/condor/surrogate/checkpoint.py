@@ -64,14 +64,18 @@ def weights_sha256(state: dict) -> str:
 NOT_RECIPE = {"config": ("num_threads",), "data": ("fingerprint",)}
 
 
-def recipe_sha256(state: dict) -> str:
+def recipe_sha256(state: dict) -> str | None:
     """sha256 (hex) of what a checkpoint was trained to be: its training settings (but the
     thread count), its network's shape and its data's description (sizes, fields, inputs, the
     number of training samples; not the data's bytes). Two trainings of the default run on two
     machines share it and differ in weights_sha256. Another dataset of the same description
-    shares it too: it names a recipe, not a dataset."""
+    shares it too: it names a recipe, not a dataset. None for a state that lacks one of the
+    three (load_checkpoint refuses such a file; a network built in code has none)."""
     import hashlib
     import json
+
+    if any(key not in state for key in ("config", "generator_config", "data")):
+        return None
 
     described = {key: {k: v for k, v in dict(state[key]).items() if k not in NOT_RECIPE.get(key, ())}
                  for key in ("config", "generator_config", "data")}
