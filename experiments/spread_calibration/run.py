@@ -48,6 +48,7 @@ import numpy as np  # noqa: E402
 import pandas as pd  # noqa: E402
 
 from condor.config import Config  # noqa: E402
+from condor.files import write_text  # noqa: E402
 from condor.moulds.lab import lab_mould  # noqa: E402
 from condor.moulds.mould import Mould  # noqa: E402
 from condor.data.dataset import open_dataset, replicated_moulds  # noqa: E402
@@ -173,11 +174,10 @@ def main(argv=None) -> None:
     scores = score(moulds, dict(zip(table["statistic"], table["factor"])))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    table.to_csv(out / f"spread_calibration_{scene.name}.csv", index=False, float_format="%.6g")
-    scores.to_csv(out / f"spread_calibration_score_{scene.name}.csv", index=False,
-                  float_format="%.4g")
-    moulds.to_csv(out / f"spread_calibration_moulds_{scene.name}.csv", index=False,
-                  float_format="%.6g")
+    for name, frame, digits in (("", table, "%.6g"), ("_score", scores, "%.4g"),
+                                ("_moulds", moulds, "%.6g")):  # each whole or not at all
+        write_text(out / f"spread_calibration{name}_{scene.name}.csv",
+                   frame.to_csv(index=False, float_format=digits))
     with pd.option_context("display.width", 200, "display.max_columns", 30):
         print(table.drop(columns=["weights_sha256", "recipe_sha256"]).to_string(index=False,
                                                                   float_format="%.3g"))
