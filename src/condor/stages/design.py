@@ -359,8 +359,7 @@ def objective_spread_factor(objective, predictor) -> tuple[float, str]:
     (condor.design.search.calibrated_statistic; condor.findings' "spread_calibration"), and a
     line saying so; (1.0, a line saying it is uncalibrated) for any other objective."""
     from condor.findings import load_findings
-    from condor.surrogate.answer import spread_calibration
-    from condor.surrogate.checkpoint import recipe_sha256, weights_sha256
+    from condor.surrogate.answer import checkpoint_spread_calibration
 
     statistic = calibrated_statistic(objective)
     if statistic is None:
@@ -369,9 +368,7 @@ def objective_spread_factor(objective, predictor) -> tuple[float, str]:
                      "mean_tension over the whole box have calibrated spreads "
                      "(experiments/spread_calibration)")
     calibration = load_findings()["spread_calibration"]
-    factors, _, warning = spread_calibration(
-        calibration.frame(), weights_sha256(predictor.state),
-        f"{calibration.experiment} at {calibration.commit}", recipe_sha256(predictor.state))
+    factors, _, warning = checkpoint_spread_calibration(calibration, predictor.state)
     line = (f"the objective's predicted spread is {statistic}'s, calibrated: x"
             f"{factors[statistic]:.3g} ({calibration.experiment} at {calibration.commit})")
     return factors[statistic], line + (f"; warning: {warning}" if warning else "")

@@ -290,9 +290,8 @@ def statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale: fl
     checkpoint predicts no spread); `scale`: the drawing's placement factor (areas in mm^2
     are the drawn mould's)."""
     from condor.design.search import prediction_spread
-    from condor.surrogate.answer import mould_summary, spread_calibration
+    from condor.surrogate.answer import checkpoint_spread_calibration, mould_summary
     from condor.surrogate.calibration import tissue_pixels
-    from condor.surrogate.checkpoint import recipe_sha256, weights_sha256
 
     pixel_size = predictor.pixel_size
     if pixel_size is None:
@@ -300,10 +299,8 @@ def statistics_with_spread(predictor, prediction, inputs, l0_um, warn, scale: fl
     spread = prediction_spread(prediction)  # in normalised units, like the fields
     factors, calibrated = None, None
     if spread is not None:  # the statistics' spread factors: experiments/spread_calibration
-        calibration = load_findings()["spread_calibration"]
-        factors, calibrated, warning = spread_calibration(
-            calibration.frame(), weights_sha256(predictor.state),
-            f"{calibration.experiment} at {calibration.commit}", recipe_sha256(predictor.state))
+        factors, calibrated, warning = checkpoint_spread_calibration(
+            load_findings()["spread_calibration"], predictor.state)
         if warning is not None:
             warn(warning)
     table = mould_summary(prediction.normalised, float(prediction.n_cells), pixel_size, spread,

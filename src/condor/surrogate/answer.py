@@ -170,6 +170,15 @@ def spread_calibration(table: pd.DataFrame, weights: str, provenance: str = "",
     return factors, note, warning
 
 
+def checkpoint_spread_calibration(finding, state: dict) -> tuple:
+    """spread_calibration of the finding "spread_calibration" (condor.findings) for a loaded
+    checkpoint `state`: its weights and recipe, the finding's experiment and commit."""
+    from condor.surrogate.checkpoint import recipe_sha256, weights_sha256
+
+    return spread_calibration(finding.frame(), weights_sha256(state),
+                              f"{finding.experiment} at {finding.commit}", recipe_sha256(state))
+
+
 NO_DIRECTION = "no clear direction: the alignment lies within its spread of 0"
 
 
